@@ -1,0 +1,41 @@
+# mjendo: `make train POLICY=E` and `make test` work from a fresh clone.
+PY      ?= python3
+VENV    := .venv
+BIN     := $(VENV)/bin
+STAMP   := $(VENV)/.installed
+POLICY  ?= E
+ENV     ?=
+FIDELITY ?= fast
+
+.PHONY: setup test bench lint models train clean
+
+$(STAMP): pyproject.toml
+	$(PY) -m venv $(VENV)
+	$(BIN)/pip install --quiet --upgrade pip
+	# torch first: the CPU build 2.13.0 (an unpinned torch pulls a multi-GB CUDA build)
+	$(BIN)/pip install --quiet torch==2.13.0
+	$(BIN)/pip install --quiet -e '.[dev]'
+	touch $(STAMP)
+
+setup: $(STAMP)
+
+test: $(STAMP)
+	$(BIN)/python -m pytest -q
+
+bench: $(STAMP)
+	$(BIN)/python -m mjendo.bench
+
+lint: $(STAMP)
+	$(BIN)/ruff check mjendo tests train eval
+
+# Regenerate the committed stomach mesh and scene files.
+models: $(STAMP)
+	$(BIN)/python -m mjendo.anatomy build
+	$(BIN)/python -m mjendo.scene
+
+train: $(STAMP)
+	$(BIN)/python -m mjendo.train --policy $(POLICY) $(if $(TIMESTEPS),--timesteps $(TIMESTEPS)) \
+	  $(if $(SEED),--seed $(SEED)) $(if $(N_ENVS),--n-envs $(N_ENVS))
+
+clean:
+	rm -rf $(VENV) *.egg-info

@@ -1,0 +1,213 @@
+"""Every physical number of mjendo, in one place, with where it comes from.
+
+"paper" means Ng, Gao, Ren, Lai, Ren, *Contact-Aided Navigation of Flexible
+Robotic Endoscope Using Deep Reinforcement Learning in Dynamic Stomach*.
+Lengths here are in millimetres where the source quotes millimetres; the
+model builders convert them once through :mod:`mjendo.units`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+# --------------------------------------------------------------------------
+# Paper facts used as checks (not as free parameters).
+PAPER_STOMACH_LENGTH_MM = 190.0  # paper: average adult male stomach length
+PAPER_GREATER_CURVATURE_MM = 344.0  # paper: greater curvature length
+PAPER_ACTIVE_SEGMENT_MM = 79.0  # paper: active bending segment
+PAPER_N_FIXED = 3  # paper: 3 fixed vertex indices
+PAPER_N_FORCED = 2  # paper: 2 forced vertex indices
+PAPER_F0_N = 1.0  # paper: |f0| = 1 N square-wave force
+PAPER_ALARM_DISTANCE_MM = 2.0  # paper: SOFA alarm distance
+PAPER_CONTACT_DISTANCE_MM = 0.5  # paper: SOFA contact distance
+PAPER_FRICTION = 0.1  # paper: friction coefficient
+GRAVITY = 9.8  # paper: m/s^2
+
+
+@dataclass(frozen=True)
+class StomachShape:
+    """Parameters of the built-in J-shaped stomach (lumen centreline + radius).
+
+    The defaults were tuned (``python -m mjendo.anatomy report``) so that the
+    outer length and greater curvature match the paper's 190 mm and 344 mm
+    within a few per cent.
+    """
+
+    fundus_radius_mm: float = 40.0  # dome over the cardia
+    body_radius_mm: float = 40.0  # corpus, widest part
+    body_length_mm: float = 50.0  # straight descending part after the dome
+    bend_radius_mm: float = 50.0  # radius of the J's bottom (angular incisure)
+    bend_angle_deg: float = 100.0  # how far the J turns back up
+    antrum_radius_mm: float = 26.0  # radius where the antrum begins
+    antrum_length_mm: float = 20.0  # straight antrum after the bend
+    pylorus_radius_mm: float = 11.0  # closed pyloric end
+    # A distended adult gastric wall measures about 3-5 mm; 5 mm keeps the
+    # single-layer tets of a coarse mesh reasonably shaped.
+    wall_thickness_mm: float = 5.0
+    n_around: int = 12  # vertices around each ring (even: both curvatures)
+    ring_spacing_mm: float = 20.0  # target spacing of rings along the centreline
+    # Cardia (gastro-oesophageal junction): on the lesser-curvature side, just
+    # below the fundus dome; its opening is about 2.5-3 cm across.
+    cardia_arclength_mm: float = 12.0
+    cardia_radius_mm: float = 15.0
+
+
+@dataclass(frozen=True)
+class Material:
+    """Linear elastic stomach wall (MuJoCo flex ``<elasticity>``)."""
+
+    # Reported moduli of gastric wall span 1e3-1e6 Pa (indentation vs tensile,
+    # strain level). We calibrated this value so that the paper's 1 N periodic load moves the
+    # loaded wall by millimetres to about a centimetre (see docs/physics.md).
+    young_pa: float = 150e3
+    # Tissue is nearly incompressible (~0.45-0.49), but poisson near 0.45 on a
+    # coarse single-layer mesh is ill-conditioned in MuJoCo; 0.3 is the
+    # compromise (documented in docs/physics.md).
+    poisson: float = 0.3
+    # s; stiffness-proportional (Rayleigh beta) damping: tissue dissipation, so
+    # the wall settles within ~0.1 s instead of ringing.
+    damping: float = 0.03
+    density_kg_m3: float = 1040.0  # soft tissue
+
+
+@dataclass(frozen=True)
+class Contact:
+    """Paper's SOFA contact settings mapped onto MuJoCo.
+
+    MuJoCo creates a contact when the surfaces are closer than ``margin`` and
+    the constraint acts when closer than ``margin - gap``: so margin = alarm
+    distance (2 mm) and gap = alarm - contact distance (1.5 mm) reproduce
+    SOFA's 'detect at 2 mm, keep 0.5 mm apart'. SOFA's Lagrange-multiplier
+    contact (no interpenetration) maps to MuJoCo's constraint solver with a
+    hard impedance.
+    """
+
+    margin_mm: float = PAPER_ALARM_DISTANCE_MM
+    gap_mm: float = PAPER_ALARM_DISTANCE_MM - PAPER_CONTACT_DISTANCE_MM
+    friction: float = PAPER_FRICTION
+    solimp: tuple[float, float, float] = (0.95, 0.99, 0.001)
+
+
+@dataclass(frozen=True)
+class Endoscope:
+    """Flexible robotic endoscope: chain of capsules, 4 cables, insertion slide."""
+
+    diameter_mm: float = 9.8  # adult gastroscopes are about 9-10 mm
+    active_length_mm: float = PAPER_ACTIVE_SEGMENT_MM
+    n_active_links: int = 8
+    # Only the part that can enter the stomach is simulated (paper's passive
+    # segment is 1000 mm). It must reach from the cardia to the far wall.
+    passive_length_mm: float = 200.0
+    n_passive_links: int = 8
+    cable_offset_mm: float = 3.5  # cable channel radius inside the 9.8 mm tube
+    # Bending stiffness EI. Active bending sections are far softer than the
+    # insertion tube; values of this order are reported for gastroscopes.
+    active_EI_Nm2: float = 0.004
+    passive_EI_Nm2: float = 0.03
+    linear_density_kg_m: float = 0.1  # ~100 g per metre of insertion tube
+    # Numerical mass scaling of the joints (like SOFA's quasi-static solve):
+    # lets the chain run at the scene timestep without changing statics.
+    joint_armature: float = 2e-5
+    joint_damping: float = 2e-3  # N m s / rad
+    cable_max_tension_n: float = 40.0
+    cable_kp_n_per_m: float = 8000.0  # cable servo stiffness (position control)
+    insertion_kp_n_per_m: float = 2000.0  # stiff insertion servo (a motorised feeder)
+    insertion_damping: float = 25.0  # N s / m, about critical for the carriage
+    insertion_max_force_n: float = 10.0
+    insertion_range_mm: tuple[float, float] = (-20.0, 160.0)
+    # Where the tip starts at insertion 0: this far past the cardia opening.
+    start_depth_mm: float = 20.0
+
+
+@dataclass(frozen=True)
+class Fidelity:
+    """How the stomach's flex degrees of freedom are resolved."""
+
+    name: str
+    dof: str  # MuJoCo flex dof: "trilinear" (reduced order) or "full"
+    cellcount: tuple[int, int, int] = (1, 1, 1)  # trilinear grid cells
+    timestep_s: float = 0.005
+    # The discrete integrator solves M + hD + h^2 K iteratively with the same
+    # iteration cap and tolerance as the constraint solver; the full mesh needs
+    # more iterations to converge without a warning.
+    iterations: int = 50
+    tolerance: float = 1e-6
+    # Reduced-order stomachs are stiffer than the mesh they interpolate
+    # (locking). This factor on young's modulus was calibrated so that the
+    # periodic load moves the forced vertices as far as in the full model
+    # (docs/physics.md; `make bench` prints the wall motion of each scene).
+    young_scale: float = 1.0
+
+
+FIDELITIES: dict[str, Fidelity] = {
+    # Default: reduced-order stomach, interpolated on a trilinear grid (also
+    # supported by MuJoCo Warp); collision still uses the full mesh.
+    "fast": Fidelity("fast", "trilinear", (2, 2, 2), 0.005, young_scale=0.02),
+    # Every mesh vertex is a 3-dof body: the per-vertex FEM stomach.
+    "full": Fidelity("full", "full", (1, 1, 1), 0.005, iterations=400, tolerance=1e-4),
+}
+
+
+@dataclass(frozen=True)
+class PeriodicLoad:
+    """Square-wave force on the forced vertices (breathing / motility)."""
+
+    f0_n: float = PAPER_F0_N
+    # Half period T (the wave's period is 2T). The paper gives no value;
+    # 2 s gives a 4 s cycle, i.e. 15 breaths per minute.
+    half_period_s: float = 2.0
+    # Diaphragm excursion in breathing is mostly cranio-caudal: push along z.
+    direction: tuple[float, float, float] = (0.0, 0.0, 1.0)
+
+
+@dataclass(frozen=True)
+class EnvSpec:
+    """One of the paper's five environments."""
+
+    name: str
+    has_stomach: bool
+    load_multiplier: float  # times f0 (0: no periodic force)
+    target_list: str  # "A" (training) or "B" (held out)
+
+
+ENVIRONMENTS: dict[str, EnvSpec] = {
+    "FE": EnvSpec("FE", False, 0.0, "A"),
+    "SE": EnvSpec("SE", True, 0.0, "A"),
+    "DE": EnvSpec("DE", True, 1.0, "A"),
+    "UE1": EnvSpec("UE1", True, 2.0, "B"),
+    "UE2": EnvSpec("UE2", True, 3.0, "B"),
+}
+
+
+@dataclass(frozen=True)
+class SceneConfig:
+    """Everything one scene is built from."""
+
+    env: EnvSpec
+    fidelity: Fidelity
+    material: Material = field(default_factory=Material)
+    contact: Contact = field(default_factory=Contact)
+    endoscope: Endoscope = field(default_factory=Endoscope)
+    load: PeriodicLoad = field(default_factory=PeriodicLoad)
+    gravity: float = GRAVITY
+
+    def young_pa(self) -> float:
+        """Young's modulus used by this scene's flex (fidelity-calibrated)."""
+        return self.material.young_pa * self.fidelity.young_scale
+
+
+class ConfigError(ValueError):
+    """A configuration value is unknown or physically unusable."""
+
+
+def _pick(table: dict, key: str, what: str):
+    if key not in table:
+        raise ConfigError(f"unknown {what} {key!r}; valid: {', '.join(table)}")
+    return table[key]
+
+
+def scene_config(env: str = "DE", fidelity: str = "fast", **overrides) -> SceneConfig:
+    """The scene config for an environment name and fidelity preset name."""
+    cfg = SceneConfig(env=_pick(ENVIRONMENTS, env, "environment"),
+                      fidelity=_pick(FIDELITIES, fidelity, "fidelity"))
+    return replace(cfg, **overrides) if overrides else cfg

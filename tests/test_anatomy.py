@@ -1,0 +1,113 @@
+"""The stomach mesh: anatomy sizes, element quality, vertex sets, reproducibility, bad input."""
+
+import numpy as np
+import pytest
+
+from mjendo import anatomy, tetmesh
+from mjendo.config import PAPER_GREATER_CURVATURE_MM, PAPER_N_FIXED, PAPER_N_FORCED, PAPER_STOMACH_LENGTH_MM
+from mjendo.tetmesh import MeshError
+
+
+def test_sizes_match_paper(stomach):
+    info = anatomy.build().info
+    assert abs(info["length_mm"] / PAPER_STOMACH_LENGTH_MM - 1) < 0.05
+    assert abs(info["greater_curvature_mm"] / PAPER_GREATER_CURVATURE_MM - 1) < 0.05
+    # J shape: the lesser curvature is much shorter than the greater one.
+    assert info["lesser_curvature_mm"] < 0.6 * info["greater_curvature_mm"]
+
+
+def test_mesh_quality(stomach):
+    q = tetmesh.quality(stomach.mesh)
+    assert q["inverted"] == 0
+    assert q["min_dihedral_deg"] > 5.0
+    assert q["min_radius_ratio"] > 0.1
+    # Wall volume equals outer minus inner enclosed volume (prisms split without overlap).
+    b = stomach.mesh.boundary_faces()
+    p = stomach.mesh.points
+    enclosed = np.einsum("ij,ij->", p[b[:, 0]], np.cross(p[b[:, 1]], p[b[:, 2]])) / 6
+    assert enclosed == pytest.approx(stomach.mesh.volumes().sum(), rel=1e-9)
+
+
+def test_boundary_is_closed_and_hollow(stomach):
+    faces = stomach.mesh.boundary_faces()
+    edges = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
+    _, counts = np.unique(edges, axis=0, return_counts=True)
+    assert np.all(counts == 2)  # watertight wall surface
+    # Hollow: the lumen surface encloses a large cavity (an adult stomach holds ~1 l).
+    verts, tris, _ = anatomy.lumen_surface(anatomy.StomachShape())
+    lumen_ml = np.einsum("ij,ij->", verts[tris[:, 0]], np.cross(verts[tris[:, 1]], verts[tris[:, 2]])) / 6 * 1e6
+    assert 400 < lumen_ml < 2000
+
+
+def test_vertex_sets(stomach):
+    assert len(stomach.fixed) == PAPER_N_FIXED and len(stomach.forced) == PAPER_N_FORCED
+    a, b = set(stomach.targets_a), set(stomach.targets_b)
+    assert a and b and not (a & b)
+    inner = stomach.mesh.inner
+    assert all(inner[i] for i in a | b)
+    # On the inner wall: the nearest outer-wall vertex is about one wall thickness away.
+    outer = stomach.mesh.points[~inner]
+    for i in list(a | b):
+        d = np.min(np.linalg.norm(outer - stomach.mesh.points[i], axis=1)) * 1e3
+        assert 3.0 < d < 8.0
+    assert not inner[stomach.fixed].any() and not inner[stomach.forced].any()
+
+
+def test_committed_mesh_is_current(stomach):
+    fresh = anatomy.build()
+    np.testing.assert_allclose(fresh.mesh.points, stomach.mesh.points, atol=1e-9)
+    np.testing.assert_array_equal(np.sort(fresh.mesh.tets, 1), np.sort(stomach.mesh.tets, 1))
+    for key in ("fixed", "forced", "targets_a", "targets_b"):
+        assert getattr(fresh, key) == getattr(stomach, key), key
+
+
+def test_user_surface_roundtrip(tmp_path):
+    import trimesh
+
+    # An ellipsoidal "stomach" in millimetres, as a user would export it.
+    s = trimesh.creation.icosphere(subdivisions=2, radius=1.0)
+    s.apply_scale([90.0, 50.0, 45.0])
+    path = tmp_path / "lumen.stl"
+    s.export(path)
+    st = anatomy.from_surface(path, entry_mm=[90.0, 0, 0], axis=[-1, 0, 0], thickness_mm=5.0)
+    assert tetmesh.quality(st.mesh)["inverted"] == 0
+    assert st.targets_a and st.targets_b
+    anatomy.save(st, tmp_path / "mine")
+    back = anatomy.load(tmp_path / "mine")
+    np.testing.assert_allclose(back.mesh.points, st.mesh.points, atol=1e-9)
+
+
+def test_open_surface_is_rejected(tmp_path):
+    import trimesh
+
+    s = trimesh.creation.icosphere(subdivisions=2, radius=80.0)
+    s.update_faces(np.arange(len(s.faces)) != 0)  # punch a hole
+    path = tmp_path / "open.stl"
+    s.export(path)
+    with pytest.raises(MeshError, match="not closed"):
+        anatomy.from_surface(path, entry_mm=[80, 0, 0], axis=[-1, 0, 0])
+
+
+def test_inverted_surface_and_wrong_units_are_rejected(tmp_path):
+    import trimesh
+
+    s = trimesh.creation.icosphere(subdivisions=2, radius=80.0)
+    s.invert()
+    with pytest.raises(MeshError, match="inwards"):
+        tetmesh.check_surface(np.asarray(s.vertices), np.asarray(s.faces))
+    tiny = trimesh.creation.icosphere(subdivisions=2, radius=0.08)  # metres, not mm
+    path = tmp_path / "metres.stl"
+    tiny.export(path)
+    with pytest.raises(MeshError, match="millimetres"):
+        anatomy.from_surface(path, entry_mm=[0.08, 0, 0], axis=[-1, 0, 0])
+
+
+def test_missing_and_corrupt_files(tmp_path):
+    with pytest.raises(MeshError, match="does not exist"):
+        tetmesh.read_msh(tmp_path / "nope.msh")
+    bad = tmp_path / "bad.msh"
+    bad.write_text("this is not a mesh")
+    with pytest.raises(MeshError, match="cannot read"):
+        tetmesh.read_msh(bad)
+    with pytest.raises(MeshError, match="anatomy build"):
+        anatomy.load(tmp_path)

@@ -1,0 +1,138 @@
+"""Physics behaviour: anchors, the periodic load, rest, cables, insertion, contact forces."""
+
+import mujoco
+import numpy as np
+import pytest
+
+from mjendo.sim import Simulator, square_wave
+
+
+def run_until(sim, t_end, record=None):
+    out = []
+    while sim.time < t_end - 1e-9:
+        sim.step(1)
+        if record is not None:
+            out.append(record(sim))
+    return np.array(out)
+
+
+def retract(sim):
+    """Pull the scope back out of the cardia so the stomach is untouched."""
+    sim.set_controls(np.zeros(4), sim.insertion_range[0])
+
+
+def test_square_wave_is_the_papers():
+    assert square_wave(0.5, 1.0, 2.0) == 1.0
+    assert square_wave(2.5, 1.0, 2.0) == -1.0
+    assert square_wave(4.0, 1.0, 2.0) == 1.0
+    assert square_wave(3.0, 0.0, 2.0) == 0.0
+
+
+@pytest.mark.parametrize("fidelity,tol_mm", [("fast", 1.0), ("full", 1e-6)])
+def test_fixed_vertices_stay_put(stomach, fidelity, tol_mm):
+    sim = Simulator("DE", fidelity)
+    x0 = sim.vertices(stomach.fixed)
+    retract(sim)
+    run_until(sim, 1.0 if fidelity == "full" else 3.0)
+    drift_mm = np.abs(sim.vertices(stomach.fixed) - x0).max() * 1e3
+    assert drift_mm < tol_mm
+    # ... while the rest of the stomach does move.
+
+
+def forced_z(env, stomach, t_end=6.0):
+    sim = Simulator(env, "fast")
+    retract(sim)
+    z = run_until(sim, t_end, lambda s: s.vertices(stomach.forced)[:, 2].mean())
+    t = np.arange(1, len(z) + 1) * sim.model.opt.timestep
+    return t, z
+
+
+def test_forced_vertices_follow_the_square_wave(stomach):
+    t, z = forced_z("DE", stomach)
+    T = 2.0
+
+    def at(x):
+        return z[np.argmin(np.abs(t - x))]
+
+    # +f0 (up) in [0, T), -f0 in [T, 2T), +f0 again: motion reverses each T.
+    assert at(2 * T - 0.05) < at(T - 0.05) - 1e-3
+    assert at(3 * T - 0.05) > at(2 * T - 0.05) + 1e-3
+    # After each reversal the vertex moves the way the force now points.
+    assert at(T + 0.6) < at(T - 0.05) - 1e-3 and at(2 * T + 0.6) > at(2 * T - 0.05) + 1e-3
+    amplitude_mm = (at(3 * T - 0.05) - at(2 * T - 0.05)) * 1e3
+    assert 2.0 < amplitude_mm < 15.0  # millimetres to about a centimetre
+
+
+def test_stronger_environments_move_the_wall_more(stomach):
+    def amp(env):
+        t, z = forced_z(env, stomach)
+        return z[np.argmin(np.abs(t - 5.95))] - z[np.argmin(np.abs(t - 3.95))]
+
+    de, ue1, ue2 = amp("DE"), amp("UE1"), amp("UE2")
+    assert ue1 / de == pytest.approx(2.0, rel=0.2)
+    assert ue2 / de == pytest.approx(3.0, rel=0.2)
+
+
+def test_static_stomach_without_contact_comes_to_rest():
+    sim = Simulator("SE", "fast")
+    retract(sim)
+    run_until(sim, 2.0)
+    x = sim.vertices()
+    run_until(sim, 3.0)
+    assert np.abs(sim.vertices() - x).max() < 2e-4  # < 0.2 mm in the last second
+    assert not sim.contact().active
+
+
+def bend(sim, cable, pull):
+    sim.reset()
+    pulls = np.zeros(4)
+    pulls[cable] = pull
+    pulls[cable ^ 1] = -pull  # antagonist pays out
+    sim.set_controls(pulls, 0.0)
+    run_until(sim, 1.5)
+
+
+def test_each_cable_bends_the_tip_towards_its_side():
+    sim = Simulator("FE")
+    bend(sim, 0, 0.0)  # straight tube, sagged under gravity: the reference
+    p0, a0 = sim.tip_pos(), sim.tip_axis()
+    base = sim.data.xmat[mujoco.mj_name2id(sim.model, mujoco.mjtObj.mjOBJ_BODY, "carriage")].reshape(3, 3)
+    sides = [base[:, 0], -base[:, 0], base[:, 1], -base[:, 1]]  # cable_px, nx, py, ny
+    for cable, side in enumerate(sides):
+        bend(sim, cable, 0.006)
+        moved = sim.tip_pos() - p0
+        assert moved @ side > 0.015, (cable, moved)
+        assert abs(moved @ sides[cable ^ 2]) < 0.002  # stays in its bending plane
+    bend(sim, 0, sim.cable_pull_max[0])
+    angle = np.degrees(np.arccos(np.clip(sim.tip_axis() @ a0, -1, 1)))
+    assert angle > 100.0  # beyond +-90 degrees
+
+
+def test_insertion_advances_the_tip(stomach):
+    sim = Simulator("FE")
+    p0 = sim.tip_pos()
+    sim.set_controls(np.zeros(4), 0.06)
+    run_until(sim, 1.0)
+    assert (sim.tip_pos() - p0) @ stomach.axis == pytest.approx(0.06, abs=0.003)
+
+
+def test_pushing_into_the_wall_gives_an_opposing_force_that_matches_the_joint():
+    sim = Simulator("SE", "fast")
+    seen = []
+    for depth in np.linspace(0.0, 0.16, 33):
+        sim.set_controls(np.zeros(4), depth)
+        sim.step(20)
+        c = sim.contact(details=True)
+        if c.active and np.linalg.norm(c.force) > 0.2:
+            seen.append(c)
+            break
+    assert seen, "the straight scope never reached the far wall"
+    c = seen[0]
+    axis = sim.data.xmat[mujoco.mj_name2id(sim.model, mujoco.mjtObj.mjOBJ_BODY, "carriage")].reshape(3, 3)[:, 2]
+    assert c.force @ axis < 0  # the wall pushes back against insertion
+    np.testing.assert_allclose(c.forces.sum(0), c.force, atol=1e-9)
+    # Independent measure: every scope body rides on the insertion slide, so the
+    # constraint force on that joint is the axial part of all contact forces.
+    jnt = mujoco.mj_name2id(sim.model, mujoco.mjtObj.mjOBJ_JOINT, "insertion")
+    qfrc = sim.data.qfrc_constraint[sim.model.jnt_dofadr[jnt]]
+    assert qfrc == pytest.approx(c.force @ axis, rel=0.05)

@@ -1,3 +1,16 @@
-"""mjendo: contact-aided navigation of a flexible robotic endoscope in a deformable, moving stomach."""
+"""mjendo: contact-aided navigation of a flexible robotic endoscope in a deformable, moving stomach.
+
+Importing the package registers the Gymnasium ids ``mjendo/FE-v0`` ...
+``mjendo/UE2-v0`` and the paper's ``endogym-v0`` (DE).
+"""
 
 __version__ = "0.1.0"
+
+
+def _register() -> None:
+    from mjendo.envs import register_all
+
+    register_all()
+
+
+_register()

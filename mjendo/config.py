@@ -114,7 +114,9 @@ class Endoscope:
     insertion_kp_n_per_m: float = 2000.0  # stiff insertion servo (a motorised feeder)
     insertion_damping: float = 25.0  # N s / m, about critical for the carriage
     insertion_max_force_n: float = 10.0
-    insertion_range_mm: tuple[float, float] = (-20.0, 160.0)
+    # Withdrawal past the cardia (below -start_depth) is possible: leaving the
+    # stomach is a real failure mode the task penalises.
+    insertion_range_mm: tuple[float, float] = (-30.0, 160.0)
     # Where the tip starts at insertion 0: this far past the cardia opening.
     start_depth_mm: float = 20.0
 
@@ -211,3 +213,45 @@ def scene_config(env: str = "DE", fidelity: str = "fast", **overrides) -> SceneC
     cfg = SceneConfig(env=_pick(ENVIRONMENTS, env, "environment"),
                       fidelity=_pick(FIDELITIES, fidelity, "fidelity"))
     return replace(cfg, **overrides) if overrides else cfg
+
+
+# --------------------------------------------------------------------------
+# The learning problem (paper's MDP).
+PAPER_ACTION_LIMIT = 0.4  # paper: actions in [-0.4, 0.4]
+PAPER_SUCCESS_MM = 3.0  # paper: success when the tip is within 3 mm
+PAPER_BONUS = 1e4  # paper: R_S = +1e4 on success, R_B = -1e4 on leaving
+PAPER_EXIT_X_MM = 15.0  # paper: x_EE < 15 mm in its frame means the tip left
+PAPER_TRAIN_STEPS = 128  # paper: training episode length
+PAPER_EVAL_STEPS = 80  # paper: evaluation trial length
+
+
+@dataclass(frozen=True)
+class TaskConfig:
+    """One navigation task: which scene, what the agent sees, how actions scale."""
+
+    env: str = "DE"
+    fidelity: str = "fast"
+    force_obs: bool = True  # contact indicator + resultant force (policies C, E)
+    target_list: str | None = None  # None: the environment's own list (A or B)
+    max_steps: int = PAPER_TRAIN_STEPS
+    # Control period = substeps x physics timestep (5 x 5 ms = 25 ms, 40 Hz).
+    substeps: int = 5
+    # Action unit -> physical increment per control step. 0.4 (the limit)
+    # moves a cable 1 mm and the insertion 2 mm per step: full bending in
+    # ~14 steps, the far wall in ~60 steps (80 per trial).
+    cable_mm_per_unit: float = 2.5
+    insertion_mm_per_unit: float = 5.0
+    force_ref_n: float = 1.0  # the observation's force is force / force_ref
+    force_penalty: float = 0.0  # optional safety term: -force_penalty * |F| (N) per step
+    randomize_phase: bool = True  # start each episode at a random phase of the load
+
+
+def task_config(**kw) -> TaskConfig:
+    """A TaskConfig with its names checked."""
+    cfg = TaskConfig(**kw)
+    scene_config(cfg.env, cfg.fidelity)
+    if cfg.target_list not in (None, "A", "B"):
+        raise ConfigError(f"unknown target_list {cfg.target_list!r}; valid: 'A', 'B' or None")
+    if cfg.max_steps < 1 or cfg.substeps < 1:
+        raise ConfigError("max_steps and substeps must be >= 1")
+    return cfg

@@ -164,6 +164,10 @@ class Simulator:
             mujoco.mj_step(m, d)
         self.check()
 
+    def clear_warnings(self) -> None:
+        for w in self.data.warning:
+            w.number = 0
+
     def check(self) -> None:
         d = self.data
         # MuJoCo resets the state itself on a NaN and only leaves a warning.

@@ -1,0 +1,210 @@
+"""The navigation MDP, written once: state, observation, reward, termination, targets.
+
+Both the Gymnasium env (:mod:`mjendo.envs`) and the dm_control task
+(:mod:`mjendo.suite`) drive this class; neither adds task logic of its own.
+Physics is SI inside; observations, rewards and reports are in millimetres,
+converted only here through :mod:`mjendo.units`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import lru_cache
+
+import mujoco
+import numpy as np
+
+from mjendo import anatomy
+from mjendo.config import (
+    ENVIRONMENTS,
+    PAPER_ACTION_LIMIT,
+    PAPER_BONUS,
+    PAPER_EXIT_X_MM,
+    PAPER_SUCCESS_MM,
+    TaskConfig,
+    task_config,
+)
+from mjendo.sim import InstabilityError, Simulator
+from mjendo.units import from_mm, to_mm
+
+ACTION_SIZE = 5
+# (name, size, unit) of each observation block, in order.
+OBS_BLOCKS = [("ee_to_target", 3, "mm"), ("ee_velocity", 3, "mm/s"), ("cable_lengths", 4, "mm"),
+              ("previous_axial_action", 1, "action units")]
+FORCE_BLOCKS = [("contact", 1, "0/1"), ("force", 3, "N / force_ref_n")]
+SETTLE_S = 1.0  # the stomach settles under gravity (and load) before episodes start
+
+TARGET_WHITE = (1.0, 1.0, 1.0, 1.0)
+TARGET_YELLOW = (1.0, 0.85, 0.0, 1.0)
+
+
+def obs_size(force_obs: bool) -> int:
+    return sum(n for _, n, _ in OBS_BLOCKS + (FORCE_BLOCKS if force_obs else []))
+
+
+@lru_cache(maxsize=4)
+def free_targets(fidelity: str) -> np.ndarray:
+    """Where the wall would be (FE): every lumen vertex of the settled static stomach."""
+    sim = Simulator("SE", fidelity)
+    sim.set_controls(np.zeros(4), sim.insertion_range[0])  # scope out of the way
+    sim.step(int(round(SETTLE_S / sim.model.opt.timestep)))
+    return sim.vertices()
+
+
+@dataclass
+class StepResult:
+    obs: np.ndarray
+    reward: float
+    terminated: bool
+    truncated: bool
+    info: dict = field(default_factory=dict)
+
+
+class NavigationTask:
+    """Reach a target vertex on the stomach wall with the endoscope tip."""
+
+    def __init__(self, cfg: TaskConfig | None = None, **kw):
+        self.cfg = cfg if cfg is not None else task_config(**kw)
+        c = self.cfg
+        self.sim = Simulator(c.env, c.fidelity)
+        self.stomach = anatomy.load()
+        listname = c.target_list or ENVIRONMENTS[c.env].target_list
+        self.target_list = listname
+        self.targets = np.array(self.stomach.targets_a if listname == "A" else self.stomach.targets_b)
+        self.cable_step = from_mm(c.cable_mm_per_unit)
+        self.insertion_step = from_mm(c.insertion_mm_per_unit)
+        self.control_dt = c.substeps * self.sim.model.opt.timestep
+        # Paper's frame: x along the insertion axis, origin 15 mm outside the
+        # cardia, so "x_EE < 15 mm" means the tip is back behind the cardia.
+        self.axis = self.stomach.axis
+        self.origin = self.stomach.entry - from_mm(PAPER_EXIT_X_MM) * self.axis
+        self._fe_targets = None if self.sim.has_stomach else free_targets(c.fidelity)
+        self._settled = self._settle()
+        self.target = int(self.targets[0])
+        self.pulls = np.zeros(4)
+        self.insertion = 0.0
+        self.prev_axial = 0.0
+        self.steps = 0
+        self.peak_force = 0.0
+        self.success_once = False
+        self.contact = None
+
+    # ------------------------------------------------------------- episodes
+    def _settle(self) -> np.ndarray:
+        sim = self.sim
+        sim.reset()
+        sim.set_controls(np.zeros(4), 0.0)
+        sim.step(int(round(SETTLE_S / sim.model.opt.timestep)))
+        return self._get_state()
+
+    def _get_state(self) -> np.ndarray:
+        m, d = self.sim.model, self.sim.data
+        spec = mujoco.mjtState.mjSTATE_INTEGRATION
+        state = np.empty(mujoco.mj_stateSize(m, spec))
+        mujoco.mj_getState(m, d, state, spec)
+        return state
+
+    def reset(self, rng: np.random.Generator) -> np.ndarray:
+        """Start an episode: settled stomach, straight scope, a random target."""
+        sim = self.sim
+        mujoco.mj_setState(sim.model, sim.data, self._settled, mujoco.mjtState.mjSTATE_INTEGRATION)
+        sim.clear_warnings()  # counts belong to the previous episode
+        if self.cfg.randomize_phase and sim.f0:
+            sim.data.time = float(rng.uniform(0.0, 2 * sim.half_period))
+        self.target = int(rng.choice(self.targets))
+        self.pulls[:] = 0.0
+        self.insertion = 0.0
+        self.prev_axial = 0.0
+        self.steps = 0
+        self.peak_force = 0.0
+        self.success_once = False
+        sim.set_controls(self.pulls, self.insertion)
+        mujoco.mj_forward(sim.model, sim.data)
+        self.contact = sim.contact()
+        self._mark_target(False)
+        return self.observation()
+
+    def target_pos(self) -> np.ndarray:
+        """Target position now (m): it moves with the wall in DE/UE."""
+        if self._fe_targets is not None:
+            return self._fe_targets[self.target].copy()
+        return self.sim.vertices([self.target])[0]
+
+    def tip_x_mm(self) -> float:
+        """Tip coordinate along the insertion axis in the paper's frame (mm)."""
+        return float(to_mm((self.sim.tip_pos() - self.origin) @ self.axis))
+
+    def distance_mm(self) -> float:
+        return float(to_mm(np.linalg.norm(self.sim.tip_pos() - self.target_pos())))
+
+    def _mark_target(self, reached: bool) -> None:
+        self.sim.set_target_marker(self.target_pos(), TARGET_YELLOW if reached else TARGET_WHITE)
+
+    # ---------------------------------------------------------------- step
+    def clip_action(self, action) -> np.ndarray:
+        """Actions are clipped to [-0.4, 0.4]; a wrong shape or NaN is an error."""
+        a = np.asarray(action, dtype=np.float64).reshape(-1)
+        if a.shape != (ACTION_SIZE,):
+            raise ValueError(f"action must have {ACTION_SIZE} values (4 cables, insertion), got shape "
+                             f"{np.shape(action)}")
+        if not np.isfinite(a).all():
+            raise ValueError(f"action contains NaN or inf: {a}; actions must be finite numbers in "
+                             f"[-{PAPER_ACTION_LIMIT}, {PAPER_ACTION_LIMIT}]")
+        return np.clip(a, -PAPER_ACTION_LIMIT, PAPER_ACTION_LIMIT)
+
+    def step(self, action) -> StepResult:
+        a = self.clip_action(action)
+        sim, c = self.sim, self.cfg
+        lim = sim.cable_pull_max
+        self.pulls = np.clip(self.pulls + a[:4] * self.cable_step, -lim, lim)
+        self.insertion = float(np.clip(self.insertion + a[4] * self.insertion_step, *sim.insertion_range))
+        self.prev_axial = float(a[4])
+        sim.set_controls(self.pulls, self.insertion)
+        instability = None
+        try:
+            sim.step(c.substeps)
+        except InstabilityError as exc:
+            instability = str(exc)
+            mujoco.mj_setState(sim.model, sim.data, self._settled, mujoco.mjtState.mjSTATE_INTEGRATION)
+            sim.clear_warnings()
+            mujoco.mj_forward(sim.model, sim.data)
+        self.steps += 1
+        self.contact = sim.contact()
+        force_n = float(np.linalg.norm(self.contact.force))
+        self.peak_force = max(self.peak_force, force_n)
+        dist = self.distance_mm()
+        success = dist < PAPER_SUCCESS_MM and instability is None
+        exited = self.tip_x_mm() < PAPER_EXIT_X_MM and instability is None
+        self.success_once |= success
+        self._mark_target(success)
+        terms = {
+            "reward_distance": -dist,
+            "reward_success": PAPER_BONUS if success else 0.0,
+            "reward_exit": -PAPER_BONUS if exited else 0.0,
+            "reward_force": -c.force_penalty * force_n,
+        }
+        info = {
+            "distance_mm": dist,
+            "is_success": bool(success),
+            "contact": bool(self.contact.active),
+            "force_N": self.contact.force.copy(),
+            "peak_force_N": self.peak_force,
+            "target_index": self.target,
+            "exited": bool(exited),
+            "step": self.steps,
+            **terms,
+        }
+        truncated = self.steps >= c.max_steps or instability is not None
+        if instability is not None:
+            info["instability"] = instability
+        return StepResult(self.observation(), float(sum(terms.values())), bool(success or exited),
+                          bool(truncated and not (success or exited)), info)
+
+    # ---------------------------------------------------------- observation
+    def observation(self) -> np.ndarray:
+        sim = self.sim
+        parts = [to_mm(self.target_pos() - sim.tip_pos()), to_mm(sim.tip_vel()), to_mm(sim.cable_lengths()),
+                 [self.prev_axial]]
+        if self.cfg.force_obs:
+            parts += [[1.0 if self.contact.active else 0.0], self.contact.force / self.cfg.force_ref_n]
+        return np.concatenate(parts).astype(np.float32)

@@ -18,8 +18,8 @@ class EndoscopeEnv(gym.Env):
 
     ## Action space
 
-    ``Box(-0.4, 0.4, (5,), float32)``, applied every control period of 25 ms
-    (5 physics steps of 5 ms). Out-of-range values are clipped; NaN raises.
+    ``Box(-0.4, 0.4, (5,), float32)``, applied every control period of 30 ms
+    (3 physics steps of 10 ms). Out-of-range values are clipped; NaN raises.
 
     | index | meaning | unit and scale |
     |---|---|---|

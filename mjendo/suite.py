@@ -96,5 +96,5 @@ def load(env: str = "DE", force_obs: bool = True, fidelity: str = "fast", random
     physics.task_core = core
     # One model and data for both: the core steps them, dm_control reads them.
     core.sim.model, core.sim.data = physics.model.ptr, physics.data.ptr
-    return control.Environment(physics, Navigation(core, random=random), n_sub_steps=core.cfg.substeps,
+    return control.Environment(physics, Navigation(core, random=random), n_sub_steps=core.substeps,
                                time_limit=float("inf"))

@@ -22,6 +22,7 @@ from mjendo.config import (
     PAPER_EXIT_X_MM,
     PAPER_SUCCESS_MM,
     TaskConfig,
+    substeps,
     task_config,
 )
 from mjendo.sim import InstabilityError, Simulator
@@ -73,7 +74,8 @@ class NavigationTask:
         self.targets = np.array(self.stomach.targets_a if listname == "A" else self.stomach.targets_b)
         self.cable_step = from_mm(c.cable_mm_per_unit)
         self.insertion_step = from_mm(c.insertion_mm_per_unit)
-        self.control_dt = c.substeps * self.sim.model.opt.timestep
+        self.substeps = substeps(c)
+        self.control_dt = self.substeps * self.sim.model.opt.timestep
         # Paper's frame: x along the insertion axis, origin 15 mm outside the
         # cardia, so "x_EE < 15 mm" means the tip is back behind the cardia.
         self.axis = self.stomach.axis
@@ -162,7 +164,7 @@ class NavigationTask:
         sim.set_controls(self.pulls, self.insertion)
         instability = None
         try:
-            sim.step(c.substeps)
+            sim.step(self.substeps)
         except InstabilityError as exc:
             instability = str(exc)
             mujoco.mj_setState(sim.model, sim.data, self._settled, mujoco.mjtState.mjSTATE_INTEGRATION)

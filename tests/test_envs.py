@@ -183,7 +183,7 @@ def test_dm_control_task_matches_the_gym_env():
                                    "contact", "force"}
     ts = e.step(np.zeros(5))
     assert ts.reward == pytest.approx(-e.physics.distance_mm())
-    assert e.control_timestep() == pytest.approx(0.025)
+    assert e.control_timestep() == pytest.approx(0.03)
     blind = suite.load("SE", force_obs=False)
     assert "force" not in blind.reset().observation
 

@@ -48,10 +48,11 @@ def test_unknown_names_list_valid_ones():
         Simulator("DE", "medium")
 
 
-def test_unstable_parameters_are_rejected_before_building():
-    cfg = scene_config("DE", "full", material=Material(young_pa=5e6))
-    with pytest.raises(ConfigError, match="unstable.*lower the timestep"):
-        scene.build_spec(cfg)
+def test_unusable_physics_parameters_are_rejected_with_the_fix():
+    with pytest.raises(ConfigError, match="too stiff.*lower young or the timestep"):
+        scene.scene_xml("DE", "full", material=Material(young_pa=1e9))
+    with pytest.raises(ConfigError, match="collapses under gravity.*raise young"):
+        scene.scene_xml("DE", "fast", material=Material(young_pa=100.0))
     with pytest.raises(ConfigError, match="poisson"):
         scene.build_spec(scene_config("DE", material=Material(poisson=0.5)))
 

@@ -1,0 +1,155 @@
+"""``make bench``: physics and environment speed, one process per figure, medians of repeats.
+
+Each figure runs in a fresh single-threaded process so figures do not share
+caches or compete for a core; repeats are timed back to back and the median
+is reported. Also prints the peak-to-peak wall motion under the periodic
+load (the calibration figure of docs/physics.md).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import time
+
+import numpy as np
+
+SCENES = [("FE", "fast")] + [(e, f) for f in ("fast", "full") for e in ("SE", "DE", "UE1", "UE2")]
+
+
+def _scripted_controls(sim, k: int) -> None:
+    """Insert towards the far wall while sweeping the cables (contact-rich)."""
+    t = k * sim.model.opt.timestep
+    pull = 0.006 * np.array([np.sin(t), -np.sin(t), np.cos(0.7 * t), -np.cos(0.7 * t)])
+    sim.set_controls(pull, min(0.12, 0.05 * t))
+
+
+def physics_figure(env: str, fidelity: str, repeats: int, seconds: float) -> dict:
+    from mjendo.sim import Simulator
+
+    sim = Simulator(env, fidelity)
+    dt = sim.model.opt.timestep
+    n = max(50, int(seconds / dt))
+    for k in range(int(1.0 / dt)):  # warm up into contact
+        _scripted_controls(sim, k)
+        sim.step(1)
+    rates, contacts = [], []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        for k in range(n):
+            _scripted_controls(sim, k)
+            sim.step(1)
+        rates.append(n / (time.perf_counter() - t0))
+        contacts.append(sim.data.ncon)
+    med = statistics.median(rates)
+    return {"figure": "physics", "env": env, "fidelity": fidelity, "nv": int(sim.model.nv),
+            "steps_per_s": med, "realtime_factor": med * dt, "contacts": int(np.median(contacts))}
+
+
+def env_figure(env: str, fidelity: str, repeats: int, steps: int) -> dict:
+    """env.step rate and its cost relative to the bare physics it runs (same process)."""
+    from mjendo.envs import EndoscopeEnv
+
+    e = EndoscopeEnv(env, fidelity=fidelity, force_obs=True)
+    rng = np.random.default_rng(0)
+    sim, sub = e.task.sim, e.task.substeps
+    env_rates, ratio = [], []
+    e.reset(seed=0)
+    for _ in range(repeats):
+        actions = rng.uniform(-0.4, 0.4, (steps, 5))
+        actions[:, 4] = np.abs(actions[:, 4])  # keep inserting: contacts happen
+        t0 = time.perf_counter()
+        for a in actions:
+            _, _, term, trunc, _ = e.step(a)
+            if term or trunc:
+                e.reset()
+        t_env = time.perf_counter() - t0
+        # The same number of physics steps, bare, from the current state.
+        t0 = time.perf_counter()
+        for _ in range(steps):
+            sim.step(sub)
+        t_phys = time.perf_counter() - t0
+        env_rates.append(steps / t_env)
+        ratio.append(t_env / t_phys)
+    return {"figure": "env", "env": env, "fidelity": fidelity, "env_steps_per_s": statistics.median(env_rates),
+            "step_cost_over_physics": statistics.median(ratio), "substeps": sub}
+
+
+def wall_figure(env: str, fidelity: str) -> dict:
+    """Peak-to-peak motion of the forced vertices over one load cycle (mm)."""
+    from mjendo import anatomy
+    from mjendo.sim import Simulator
+
+    st = anatomy.load()
+    sim = Simulator(env, fidelity)
+    sim.set_controls(np.zeros(4), sim.insertion_range[0])
+    z = []
+    while sim.time < 4 * sim.half_period:
+        sim.step(1)
+        if sim.time >= 2 * sim.half_period:  # after the first cycle
+            z.append(sim.vertices(st.forced)[:, 2].mean())
+    return {"figure": "wall", "env": env, "fidelity": fidelity, "p2p_mm": (max(z) - min(z)) * 1e3}
+
+
+def _child(args) -> None:
+    if args.figure == "physics":
+        out = physics_figure(args.env, args.fidelity, args.repeats, args.seconds)
+    elif args.figure == "env":
+        out = env_figure(args.env, args.fidelity, args.repeats, args.steps)
+    else:
+        out = wall_figure(args.env, args.fidelity)
+    print(json.dumps(out))
+
+
+def _run(argv: list[str]) -> dict:
+    env = dict(os.environ, OMP_NUM_THREADS="1", MKL_NUM_THREADS="1", PYTHONWARNINGS="ignore")
+    res = subprocess.run([sys.executable, "-m", "mjendo.bench", "--child", *argv], capture_output=True,
+                         text=True, env=env, check=False)
+    if res.returncode:
+        raise RuntimeError(f"bench figure {argv} failed:\n{res.stderr[-2000:]}")
+    return json.loads(res.stdout.strip().splitlines()[-1])
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m mjendo.bench", description=__doc__)
+    ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
+    ap.add_argument("--figure", default="physics", choices=["physics", "env", "wall"])
+    ap.add_argument("--env", default="DE")
+    ap.add_argument("--fidelity", default="fast")
+    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--seconds", type=float, default=1.0, help="simulated seconds per physics repeat")
+    ap.add_argument("--steps", type=int, default=200, help="env steps per env repeat")
+    ap.add_argument("--only", choices=["physics", "env", "wall"], help="run one group of figures")
+    args = ap.parse_args(argv)
+    if args.child:
+        _child(args)
+        return 0
+    common = ["--repeats", str(args.repeats), "--seconds", str(args.seconds), "--steps", str(args.steps)]
+    print(f"mjendo bench: medians of {args.repeats} repeats, one process per figure, 1 thread")
+    if args.only in (None, "physics"):
+        print(f"\n{'scene':<6}{'fidelity':<9}{'dofs':>6}{'steps/s':>10}{'x realtime':>12}{'contacts':>10}")
+        for env, fid in SCENES:
+            r = _run(["--figure", "physics", "--env", env, "--fidelity", fid, *common])
+            print(f"{env:<6}{fid:<9}{r['nv']:>6}{r['steps_per_s']:>10.0f}{r['realtime_factor']:>12.2f}"
+                  f"{r['contacts']:>10}", flush=True)
+    if args.only in (None, "env"):
+        print(f"\n{'env (force-aware)':<22}{'env steps/s':>12}{'step / bare physics':>22}")
+        for env, fid in [("DE", "fast"), ("DE", "full")]:
+            r = _run(["--figure", "env", "--env", env, "--fidelity", fid, *common])
+            print(f"{env + ' ' + fid:<22}{r['env_steps_per_s']:>12.0f}{r['step_cost_over_physics']:>22.3f}",
+                  flush=True)
+    if args.only in (None, "wall"):
+        print(f"\n{'wall motion':<14}{'fidelity':<9}{'p2p forced vertices (mm)':>26}")
+        for fid in ("fast", "full"):
+            for env in ("DE", "UE1", "UE2"):
+                r = _run(["--figure", "wall", "--env", env, "--fidelity", fid])
+                print(f"{env:<14}{fid:<9}{r['p2p_mm']:>26.2f}", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

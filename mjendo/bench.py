@@ -51,27 +51,41 @@ def physics_figure(env: str, fidelity: str, repeats: int, seconds: float) -> dic
 
 
 def env_figure(env: str, fidelity: str, repeats: int, steps: int) -> dict:
-    """env.step rate and its cost relative to the bare physics it runs (same process)."""
+    """env.step rate, and its cost over the bare physics it runs.
+
+    The bare run replays the same controls from the same start state with
+    ``mj_step`` only, so both time exactly the same physics.
+    """
+    import mujoco
+
     from mjendo.envs import EndoscopeEnv
 
     e = EndoscopeEnv(env, fidelity=fidelity, force_obs=True)
     rng = np.random.default_rng(0)
-    sim, sub = e.task.sim, e.task.substeps
+    m, d, sub = e.task.sim.model, e.task.sim.data, e.task.substeps
+    spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
+    state = np.empty(mujoco.mj_stateSize(m, spec))
     env_rates, ratio = [], []
-    e.reset(seed=0)
-    for _ in range(repeats):
+    for rep in range(repeats):
+        e.reset(seed=rep)
+        mujoco.mj_getState(m, d, state, spec)
         actions = rng.uniform(-0.4, 0.4, (steps, 5))
         actions[:, 4] = np.abs(actions[:, 4])  # keep inserting: contacts happen
+        ctrls = np.empty((steps, m.nu))
         t0 = time.perf_counter()
-        for a in actions:
+        for k, a in enumerate(actions):
             _, _, term, trunc, _ = e.step(a)
+            ctrls[k] = d.ctrl
             if term or trunc:
-                e.reset()
+                steps = k + 1
+                break
         t_env = time.perf_counter() - t0
-        # The same number of physics steps, bare, from the current state.
+        mujoco.mj_setState(m, d, state, spec)
         t0 = time.perf_counter()
-        for _ in range(steps):
-            sim.step(sub)
+        for k in range(steps):
+            d.ctrl[:] = ctrls[k]
+            for _ in range(sub):
+                mujoco.mj_step(m, d)
         t_phys = time.perf_counter() - t0
         env_rates.append(steps / t_env)
         ratio.append(t_env / t_phys)

@@ -44,6 +44,10 @@ class ContactReading:
     forces: np.ndarray  # (k, 3) per-contact force on the endoscope
 
 
+_NONE3 = np.zeros((0, 3))
+_NONE3.flags.writeable = False
+
+
 class Simulator:
     """One scene's model and data with named access to what the task needs."""
 
@@ -72,9 +76,11 @@ class Simulator:
                                    for c in endoscope.CABLES])
         self.tip_site = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, endoscope.TIP_SITE)
         self.tip_body = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, endoscope.TIP_BODY)
+        self.target_site = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, scene.TARGET_BODY)
         self.target_mocap = m.body_mocapid[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, scene.TARGET_BODY)]
         self.insert_qpos = m.jnt_qposadr[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, endoscope.INSERTION)]
         self.flex = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_FLEX, scene.FLEX)
+        self._vert_adr = int(m.flex_vertadr[self.flex]) if self.flex >= 0 else 0
         # Geoms of the endoscope: every geom on a body below the carriage.
         carriage = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "carriage")
         scope_bodies = {b for b in range(m.nbody) if self._below(m, b, carriage)}
@@ -82,6 +88,8 @@ class Simulator:
         self.scope_geom[[g for g in range(m.ngeom) if m.geom_bodyid[g] in scope_bodies]] = True
         self._cable_max = m.actuator_ctrlrange[self.cable_act, 1].copy()
         self._insert_range = m.actuator_ctrlrange[self.insert_act].copy()
+        self._f6 = np.zeros(6)
+        self._v6 = np.zeros(6)
 
     @staticmethod
     def _below(m: mujoco.MjModel, body: int, root: int) -> bool:
@@ -117,7 +125,7 @@ class Simulator:
 
     def tip_vel(self) -> np.ndarray:
         """Linear velocity of the tip site in the world frame (m/s)."""
-        v = np.zeros(6)
+        v = self._v6
         mujoco.mj_objectVelocity(self.model, self.data, mujoco.mjtObj.mjOBJ_SITE, self.tip_site, v, 0)
         return v[3:].copy()
 
@@ -135,9 +143,10 @@ class Simulator:
         """Current positions of stomach mesh vertices (all, or the given ids)."""
         if not self.has_stomach:
             raise ValueError(f"scene {self.env.name} has no stomach")
-        adr, n = self.model.flex_vertadr[self.flex], self.model.flex_vertnum[self.flex]
-        v = self.data.flexvert_xpos[adr:adr + n]
-        return (v if ids is None else v[np.asarray(ids)]).copy()
+        adr = self._vert_adr
+        if ids is None:
+            return self.data.flexvert_xpos[adr:adr + self.model.flex_vertnum[self.flex]].copy()
+        return self.data.flexvert_xpos[adr + np.asarray(ids)]  # fancy indexing copies
 
     def load_force(self, t: float | None = None) -> float:
         """Per-vertex periodic load (N) at time t (default: now)."""
@@ -146,14 +155,14 @@ class Simulator:
     def set_target_marker(self, pos: np.ndarray, rgba=None) -> None:
         self.data.mocap_pos[self.target_mocap] = pos
         if rgba is not None:
-            self.model.site_rgba[mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_SITE, scene.TARGET_BODY)] = rgba
+            self.model.site_rgba[self.target_site] = rgba
 
     # ---------------------------------------------------------------- control
     def set_controls(self, cable_pull: np.ndarray, insertion: float) -> None:
         """Cable pulls (m, one per cable, negative pays out) and insertion (m), clipped."""
         c = self.data.ctrl
-        c[self.cable_act] = np.clip(cable_pull, -self._cable_max, self._cable_max)
-        c[self.insert_act] = np.clip(insertion, *self._insert_range)
+        c[self.cable_act] = np.minimum(np.maximum(cable_pull, -self._cable_max), self._cable_max)
+        c[self.insert_act] = min(max(insertion, self._insert_range[0]), self._insert_range[1])
 
     def step(self, n: int = 1) -> None:
         """Advance n physics steps, driving the periodic load; raise on divergence."""
@@ -165,17 +174,17 @@ class Simulator:
         self.check()
 
     def clear_warnings(self) -> None:
-        for w in self.data.warning:
-            w.number = 0
+        self.data.warning.number[:] = 0
+
+    # MuJoCo resets the state itself on a NaN and only leaves one of these warnings.
+    _BAD = [int(mujoco.mjtWarning.mjWARN_BADQACC), int(mujoco.mjtWarning.mjWARN_BADQVEL),
+            int(mujoco.mjtWarning.mjWARN_BADQPOS)]
 
     def check(self) -> None:
         d = self.data
-        # MuJoCo resets the state itself on a NaN and only leaves a warning.
-        bad = sum(d.warning[w].number for w in (mujoco.mjtWarning.mjWARN_BADQACC,
-                                                  mujoco.mjtWarning.mjWARN_BADQVEL,
-                                                  mujoco.mjtWarning.mjWARN_BADQPOS))
-        speed = np.max(np.abs(d.qvel)) if d.qvel.size else 0.0
-        if bad or not np.isfinite(speed) or speed > MAX_SPEED:
+        bad = int(d.warning.number[self._BAD].sum())
+        speed = float(np.abs(d.qvel).max()) if d.qvel.size else 0.0
+        if bad or not speed < MAX_SPEED:
             raise InstabilityError(
                 f"physics diverged at t = {d.time:.3f} s (max |qvel| = {speed:.3g}, "
                 f"NaN/bad-acceleration warnings = {bad}) in {self.path.name}: lower the timestep, soften the "
@@ -191,24 +200,24 @@ class Simulator:
         """
         d = self.data
         n = d.ncon
-        total = np.zeros(3)
-        pts, frc = [], []
-        touching = False
-        if n and self.has_stomach:
-            con = d.contact
-            geom, flex = con.geom[:n], con.flex[:n]
-            sel = np.flatnonzero(((geom[:, 0] >= 0) & self.scope_geom[np.maximum(geom[:, 0], 0)]
-                                  & (flex[:, 1] == self.flex)) & (con.exclude[:n] == 0)
-                                 & (con.efc_address[:n] >= 0))
-            f6 = np.zeros(6)
-            for i in sel:
-                mujoco.mj_contactForce(self.model, d, int(i), f6)
-                if f6[0] <= 0.0:
-                    continue
-                touching = True
-                world = -(con.frame[i].reshape(3, 3).T @ f6[:3])
-                total += world
-                if details:
-                    pts.append(con.pos[i].copy())
-                    frc.append(world)
-        return ContactReading(total, touching, np.array(pts).reshape(-1, 3), np.array(frc).reshape(-1, 3))
+        if not (n and self.has_stomach):
+            return ContactReading(np.zeros(3), False, _NONE3, _NONE3)
+        con = d.contact
+        geom, flex = con.geom[:n], con.flex[:n]
+        sel = np.flatnonzero((geom[:, 0] >= 0) & self.scope_geom[geom[:, 0]] & (flex[:, 1] == self.flex)
+                             & (con.exclude[:n] == 0) & (con.efc_address[:n] >= 0))
+        if not sel.size:
+            return ContactReading(np.zeros(3), False, _NONE3, _NONE3)
+        local = np.empty((sel.size, 3))
+        f6 = self._f6
+        for k, i in enumerate(sel):
+            mujoco.mj_contactForce(self.model, d, int(i), f6)
+            local[k] = f6[:3]
+        pushing = local[:, 0] > 0.0
+        if not pushing.any():
+            return ContactReading(np.zeros(3), False, _NONE3, _NONE3)
+        frames = con.frame[sel[pushing]].reshape(-1, 3, 3)
+        # Rows of the contact frame are its axes: world = frame.T @ local, negated for side 0.
+        world = -np.einsum("kji,kj->ki", frames, local[pushing])
+        points = con.pos[sel[pushing]] if details else _NONE3
+        return ContactReading(world.sum(0), True, points, world if details else _NONE3)

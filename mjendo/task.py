@@ -75,6 +75,7 @@ class NavigationTask:
         self.cable_step = from_mm(c.cable_mm_per_unit)
         self.insertion_step = from_mm(c.insertion_mm_per_unit)
         self.substeps = substeps(c)
+        self.obs_size = obs_size(c.force_obs)
         self.control_dt = self.substeps * self.sim.model.opt.timestep
         # Paper's frame: x along the insertion axis, origin 15 mm outside the
         # cardia, so "x_EE < 15 mm" means the tip is back behind the cardia.
@@ -158,8 +159,9 @@ class NavigationTask:
         a = self.clip_action(action)
         sim, c = self.sim, self.cfg
         lim = sim.cable_pull_max
-        self.pulls = np.clip(self.pulls + a[:4] * self.cable_step, -lim, lim)
-        self.insertion = float(np.clip(self.insertion + a[4] * self.insertion_step, *sim.insertion_range))
+        self.pulls = np.minimum(np.maximum(self.pulls + a[:4] * self.cable_step, -lim), lim)
+        lo, hi = sim.insertion_range
+        self.insertion = min(max(self.insertion + a[4] * self.insertion_step, lo), hi)
         self.prev_axial = float(a[4])
         sim.set_controls(self.pulls, self.insertion)
         instability = None
@@ -172,13 +174,16 @@ class NavigationTask:
             mujoco.mj_forward(sim.model, sim.data)
         self.steps += 1
         self.contact = sim.contact()
-        force_n = float(np.linalg.norm(self.contact.force))
+        force_n = float(np.sqrt(self.contact.force @ self.contact.force))
         self.peak_force = max(self.peak_force, force_n)
-        dist = self.distance_mm()
-        success = dist < PAPER_SUCCESS_MM and instability is None
-        exited = self.tip_x_mm() < PAPER_EXIT_X_MM and instability is None
+        tip, target = sim.tip_pos(), self.target_pos()
+        delta = target - tip
+        dist = float(to_mm(np.sqrt(delta @ delta)))
+        ok = instability is None
+        success = dist < PAPER_SUCCESS_MM and ok
+        exited = float(to_mm((tip - self.origin) @ self.axis)) < PAPER_EXIT_X_MM and ok
         self.success_once |= success
-        self._mark_target(success)
+        self.sim.set_target_marker(target, TARGET_YELLOW if success else TARGET_WHITE)
         terms = {
             "reward_distance": -dist,
             "reward_success": PAPER_BONUS if success else 0.0,
@@ -196,17 +201,24 @@ class NavigationTask:
             "step": self.steps,
             **terms,
         }
-        truncated = self.steps >= c.max_steps or instability is not None
-        if instability is not None:
+        truncated = self.steps >= c.max_steps or not ok
+        if not ok:
             info["instability"] = instability
-        return StepResult(self.observation(), float(sum(terms.values())), bool(success or exited),
+        return StepResult(self.observation(delta), float(sum(terms.values())), bool(success or exited),
                           bool(truncated and not (success or exited)), info)
 
     # ---------------------------------------------------------- observation
-    def observation(self) -> np.ndarray:
+    def observation(self, delta: np.ndarray | None = None) -> np.ndarray:
+        """The observation vector (see OBS_BLOCKS); ``delta`` = target - tip if already known (m)."""
         sim = self.sim
-        parts = [to_mm(self.target_pos() - sim.tip_pos()), to_mm(sim.tip_vel()), to_mm(sim.cable_lengths()),
-                 [self.prev_axial]]
+        if delta is None:
+            delta = self.target_pos() - sim.tip_pos()
+        obs = np.empty(self.obs_size, np.float32)
+        obs[0:3] = to_mm(delta)
+        obs[3:6] = to_mm(sim.tip_vel())
+        obs[6:10] = to_mm(sim.cable_lengths())
+        obs[10] = self.prev_axial
         if self.cfg.force_obs:
-            parts += [[1.0 if self.contact.active else 0.0], self.contact.force / self.cfg.force_ref_n]
-        return np.concatenate(parts).astype(np.float32)
+            obs[11] = 1.0 if self.contact.active else 0.0
+            obs[12:15] = self.contact.force / self.cfg.force_ref_n
+        return obs

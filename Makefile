@@ -32,6 +32,7 @@ lint: $(STAMP)
 models: $(STAMP)
 	$(BIN)/python -m mjendo.anatomy build
 	$(BIN)/python -m mjendo.scene
+	$(BIN)/python -m mjendo.targets
 
 train: $(STAMP)
 	$(BIN)/python -m mjendo.train --policy $(POLICY) $(if $(TIMESTEPS),--timesteps $(TIMESTEPS)) \

@@ -244,6 +244,8 @@ def build(shape: StomachShape | None = None, scope: Endoscope | None = None) -> 
     sets = choose_sets(mesh, lm["entry"], lm["axis"], scope)
     info.update(tetmesh.quality(mesh))
     info["free_reachable_targets"] = sets.pop("free_reachable")
+    # Geometric candidates; `python -m mjendo.targets` keeps those reached in simulation.
+    info["candidates"] = sorted(sets["targets_a"] + sets["targets_b"])
     return Stomach(mesh, lm["entry"], lm["axis"], info=info, **sets)
 
 
@@ -277,6 +279,7 @@ def from_surface(path: Path, entry_mm, axis, thickness_mm: float = 5.0,
     scope = scope or Endoscope()
     sets = choose_sets(mesh, entry, axis, scope)
     info["free_reachable_targets"] = sets.pop("free_reachable")
+    info["candidates"] = sorted(sets["targets_a"] + sets["targets_b"])
     return Stomach(mesh, entry, axis, info=info, **sets)
 
 
@@ -338,10 +341,11 @@ def main(argv: list[str] | None = None) -> int:
             else:
                 st = build()
             save(st, args.out)
-            print(f"wrote {args.out}/stomach.msh and stomach.json")
+            print(f"wrote {args.out}/stomach.msh and stomach.json (then run `python -m mjendo.targets` "
+                  "to keep the targets reached in simulation)")
         else:
             st = load(args.dir)
-        shown = {k: v for k, v in st.info.items() if k != "free_reachable_targets"}
+        shown = {k: v for k, v in st.info.items() if not isinstance(v, list)}
         print(json.dumps(shown | {"fixed": st.fixed, "forced": st.forced,
                                   "targets_a": len(st.targets_a),
                                   "targets_b": len(st.targets_b)}, indent=1))

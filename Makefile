@@ -7,7 +7,7 @@ POLICY  ?= E
 ENV     ?=
 FIDELITY ?= fast
 
-.PHONY: setup test bench lint models train clean
+.PHONY: setup test bench lint models train eval video clean
 
 $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
@@ -40,3 +40,12 @@ train: $(STAMP)
 
 clean:
 	rm -rf $(VENV) *.egg-info
+
+# The paper's study: every shipped policy and the baseline, next to the paper's tables.
+TRIALS ?= 100
+eval: $(STAMP)
+	$(BIN)/python -m mjendo.evaluation --trials $(TRIALS)
+
+# Headless recording of shipped policy E in DE.
+video: $(STAMP)
+	MUJOCO_GL=egl $(BIN)/python -m mjendo.viewer --headless --record out.mp4

@@ -270,3 +270,15 @@ def substeps(cfg: TaskConfig) -> int:
         raise ConfigError(f"control_period_s {cfg.control_period_s} is not a multiple of the {cfg.fidelity} "
                           f"timestep {dt} s; use e.g. {max(1, n) * dt:g}")
     return n
+
+
+# --------------------------------------------------------------------------
+# Paper's results (Tables I and II): success rate % and average error mm.
+# The evaluation report prints ours next to these, cell by cell.
+PAPER_RESULTS: dict[str, dict[str, tuple[float, float]]] = {
+    "A": {"FE": (98.3, 0.4), "SE": (26.2, 2.5), "DE": (34.5, 2.2), "UE1": (32.5, 2.2), "UE2": (33.8, 2.5)},
+    "B": {"SE": (98.0, 1.6), "DE": (81.5, 1.7), "UE1": (75.6, 1.8), "UE2": (68.8, 2.1)},
+    "C": {"SE": (100.0, 1.6), "DE": (100.0, 1.6), "UE1": (81.0, 1.9), "UE2": (78.0, 1.8)},
+    "D": {"SE": (91.8, 1.6), "DE": (97.8, 1.6), "UE1": (71.3, 2.1), "UE2": (55.0, 2.0)},
+    "E": {"SE": (100.0, 1.6), "DE": (100.0, 1.6), "UE1": (84.5, 1.9), "UE2": (85.0, 1.9)},
+}

@@ -7,6 +7,7 @@ evaluation and the viewer treat them alike.
 from __future__ import annotations
 
 import json
+import os
 import pickle
 from pathlib import Path
 
@@ -16,7 +17,8 @@ from mjendo.anatomy import MODELS
 from mjendo.config import ConfigError
 from mjendo.task import NavigationTask, obs_size
 
-POLICIES_DIR = MODELS / "policies"
+# Shipped policies; MJENDO_POLICIES points evaluation and viewer at another set.
+POLICIES_DIR = Path(os.environ.get("MJENDO_POLICIES", MODELS / "policies"))
 POLICY_NAMES = ("A", "B", "C", "D", "E")
 MODEL_FILE = "model.zip"
 NORM_FILE = "vecnormalize.pkl"

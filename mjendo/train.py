@@ -31,11 +31,14 @@ CONFIG_FILE = ROOT / "train" / "policies.yaml"
 CKPT_DIR = "checkpoints"
 
 
-def load_config(policy: str, path: Path = CONFIG_FILE, **overrides) -> dict:
+def load_config(policy: str, path: Path | None = None, **overrides) -> dict:
     """The resolved training config of one policy (defaults + entry + overrides)."""
     if policy not in POLICY_NAMES:
         raise ConfigError(f"unknown policy {policy!r}; valid: {', '.join(POLICY_NAMES)}")
-    raw = yaml.safe_load(Path(path).read_text())
+    path = Path(path or CONFIG_FILE)
+    if not path.exists():
+        raise ConfigError(f"training config {path} does not exist")
+    raw = yaml.safe_load(path.read_text())
     cfg = {**raw["defaults"], **raw["policies"][policy], "policy": policy}
     cfg["ppo"] = dict(raw["defaults"]["ppo"])
     for k, v in overrides.items():
@@ -191,9 +194,9 @@ def _writable(path: Path) -> None:
 
 def train(policy: str, timesteps: int | None = None, seed: int | None = None, n_envs: int | None = None,
           out: Path = ROOT / "runs", run_name: str | None = None, fresh: bool = False,
-          vec_env: str | None = None, ship: bool = False) -> Path:
+          vec_env: str | None = None, ship: bool = False, config_file: Path | None = None) -> Path:
     """Train (or resume) one policy; returns the run folder."""
-    cfg = load_config(policy, total_timesteps=timesteps, seed=seed, n_envs=n_envs, vec_env=vec_env)
+    cfg = load_config(policy, config_file, total_timesteps=timesteps, seed=seed, n_envs=n_envs, vec_env=vec_env)
     run = Path(out) / policy / (run_name or f"seed{cfg['seed']}")
     _writable(run)
     if fresh and run.exists():
@@ -260,7 +263,7 @@ def train(policy: str, timesteps: int | None = None, seed: int | None = None, n_
             "command": " ".join(sys.argv)}
     (run / "meta.json").write_text(json.dumps(meta, indent=1) + "\n")
     venv.close()
-    from mjendo.plots import training_curve
+    from mjendo.figures import training_curve
 
     training_curve(run, run / "curve.png")
     if ship:
@@ -273,7 +276,7 @@ def ship_policy(run: Path, policy: str) -> Path:
     """Copy a finished run's policy into models/policies/<policy>/ (what users get)."""
     dest = POLICIES_DIR / policy
     dest.mkdir(parents=True, exist_ok=True)
-    for name in (MODEL_FILE, NORM_FILE, "meta.json", "curve.png", "config.yaml", "evaluations.csv"):
+    for name in (MODEL_FILE, NORM_FILE, "meta.json", "curve.png", "config.yaml", "evaluations.csv", "episodes.csv"):
         if (run / name).exists():
             shutil.copy2(run / name, dest / name)
     return dest
@@ -291,9 +294,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--run", help="run name (default seed<N>)")
     ap.add_argument("--fresh", action="store_true", help="discard an existing run instead of resuming")
     ap.add_argument("--ship", action="store_true", help="copy the final policy to models/policies/")
+    ap.add_argument("--config", type=Path, help=f"training config (default {CONFIG_FILE.relative_to(ROOT)})")
     a = ap.parse_args(argv)
     try:
-        train(a.policy, a.timesteps, a.seed, a.n_envs, a.out, a.run, a.fresh, a.vec_env, a.ship)
+        train(a.policy, a.timesteps, a.seed, a.n_envs, a.out, a.run, a.fresh, a.vec_env, a.ship, a.config)
     except ConfigError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -1,0 +1,81 @@
+"""Training end to end (a few hundred steps), resume, policy loading and bad input."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from mjendo.config import ConfigError
+from mjendo.envs import EndoscopeEnv
+from mjendo.policies import PolicyError, PPOController, load_controller
+from mjendo.train import latest_checkpoint, load_config, train
+
+
+@pytest.fixture(scope="module")
+def short_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("runs")
+    # Tiny budget: 2 envs x 64 steps per update, checkpoint and evaluate often.
+    import yaml
+
+    from mjendo.train import CONFIG_FILE
+
+    raw = yaml.safe_load(CONFIG_FILE.read_text())
+    raw["defaults"].update(checkpoint_every=128, eval_every=256, eval_episodes=1, vec_env="dummy")
+    raw["defaults"]["ppo"].update(n_steps=64, batch_size=64, n_epochs=1)
+    cfg_path = out / "policies.yaml"
+    cfg_path.write_text(yaml.safe_dump(raw))
+    run = train("D", timesteps=256, out=out, config_file=cfg_path)
+    resumed = train("D", timesteps=512, out=out, config_file=cfg_path)
+    return run, resumed
+
+
+def test_short_training_writes_a_loadable_policy(short_run):
+    run, _ = short_run
+    for name in ("model.zip", "vecnormalize.pkl", "meta.json", "config.yaml", "episodes.csv",
+                 "evaluations.csv", "curve.png"):
+        assert (run / name).exists(), name
+    ctrl = PPOController(run)
+    env = EndoscopeEnv("DE", force_obs=False)
+    obs, _ = env.reset(seed=0)
+    ctrl.reset(env.task)
+    a = ctrl.act(obs, env.task)
+    assert a.shape == (5,) and np.all(np.abs(a) <= 0.4 + 1e-6)
+    env.step(a)
+    with pytest.raises(PolicyError, match="expects 11 observations"):
+        ctrl.check(EndoscopeEnv("DE", force_obs=True).task)
+
+
+def test_resume_continues_the_step_count(short_run):
+    run, resumed = short_run
+    assert resumed == run
+    meta = json.loads((run / "meta.json").read_text())
+    assert meta["timesteps"] == 512
+    assert latest_checkpoint(run) is not None
+    steps = np.loadtxt(run / "episodes.csv", delimiter=",", skiprows=1, ndmin=2)[:, 0]
+    assert np.all(np.diff(steps) >= 0)  # one monotone log across the resume
+
+
+def test_bad_policy_value_fails_fast():
+    with pytest.raises(ConfigError, match="valid: A, B, C, D, E"):
+        load_config("F")
+    res = subprocess.run([sys.executable, "-m", "mjendo.train", "--policy", "Q"], capture_output=True, text=True)
+    assert res.returncode == 2 and "unknown policy 'Q'" in res.stderr
+
+
+def test_missing_and_corrupt_policy_files(tmp_path):
+    with pytest.raises(PolicyError, match="no policy file"):
+        PPOController(tmp_path)
+    (tmp_path / "model.zip").write_bytes(b"not a zip")
+    with pytest.raises(PolicyError, match="corrupt"):
+        PPOController(tmp_path)
+    with pytest.raises(ConfigError, match="unknown policy"):
+        load_controller("Z")
+
+
+def test_unwritable_run_folder(tmp_path):
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    with pytest.raises(ConfigError, match="cannot write the run folder"):
+        train("E", timesteps=8, out=blocker)

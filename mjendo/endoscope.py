@@ -82,7 +82,7 @@ def add_endoscope(spec: mujoco.MjSpec, cfg: Endoscope, entry: np.ndarray, axis: 
         body.add_geom(name=f"geom_{name}", type=mujoco.mjtGeom.mjGEOM_CAPSULE,
                       fromto=[0, 0, 0, 0, 0, end], size=[radius, 0, 0], density=density,
                       contype=1, conaffinity=2, condim=3,
-                      rgba=[0.15, 0.15, 0.18, 1] if active else [0.3, 0.3, 0.35, 1])
+                      rgba=[0.2, 0.22, 0.28, 1] if active else [0.38, 0.4, 0.45, 1])
         # Cables run in sheaths through the passive tube: they start at the
         # base of the active segment (distal end of the last passive link).
         # Sites sit a spacer-disc gap (inset) away from each joint, so a cable

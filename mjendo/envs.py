@@ -96,16 +96,9 @@ class EndoscopeEnv(gym.Env):
         super().reset(seed=seed)
         obs = self.task.reset(self.np_random)
         if options and "target_index" in options:
-            self.task.target = self._check_target(options["target_index"])
-            obs = self.task.observation()
+            obs = self.task.set_target(int(options["target_index"]))
         info = {"target_index": self.task.target, "distance_mm": self.task.distance_mm()}
         return obs, info
-
-    def _check_target(self, index) -> int:
-        if int(index) not in set(self.task.targets.tolist()):
-            raise ValueError(f"target_index {index} is not in target list {self.task.target_list}: "
-                             f"{self.task.targets.tolist()}")
-        return int(index)
 
     def step(self, action):
         r = self.task.step(action)

@@ -14,7 +14,7 @@ import mujoco
 import numpy as np
 
 from mjendo import anatomy, endoscope
-from mjendo.config import ENVIRONMENTS, FIDELITIES, ConfigError, SceneConfig, scene_config
+from mjendo.config import ENVIRONMENTS, FIDELITIES, PAPER_SUCCESS_MM, ConfigError, SceneConfig, scene_config
 from mjendo.units import from_mm
 
 SCENES_DIR = anatomy.MODELS / "scenes"
@@ -47,7 +47,10 @@ def _header(cfg: SceneConfig) -> str:
   </visual>
   <worldbody>
     <light pos="0 -0.6 0.4" dir="0 1 -0.6" diffuse="0.6 0.6 0.6"/>
-    <camera name="external" pos="0.02 -0.42 -0.07" xyaxes="1 0 0 0 0 1" fovy="45"/>
+    <camera name="external" pos="0.025 -0.31 -0.085" xyaxes="1 0 0 0 0 1" fovy="45"/>
+    <!-- Visual-only backdrop behind the stomach, for contrast in pictures and videos. -->
+    <geom name="backdrop" type="plane" size="0.5 0.5 0.01" pos="0.025 0.25 -0.085" zaxis="0 -1 0"
+          rgba="0.16 0.18 0.22 1" contype="0" conaffinity="0"/>
   </worldbody>
 </mujoco>"""
 
@@ -152,7 +155,8 @@ def build_spec(cfg: SceneConfig, stomach: anatomy.Stomach | None = None,
         spec = _merge_flex(spec, flex_spec)
     # Target marker: a mocap body the task moves onto the target vertex.
     tgt = spec.worldbody.add_body(name=TARGET_BODY, mocap=True, pos=st.entry)
-    tgt.add_site(name=TARGET_BODY, size=[from_mm(2.5), 0, 0], rgba=[1, 1, 1, 1])
+    # Marker radius = the paper's 3 mm success distance.
+    tgt.add_site(name=TARGET_BODY, size=[from_mm(PAPER_SUCCESS_MM), 0, 0], rgba=[1, 1, 1, 1])
     endoscope.add_endoscope(spec, cfg.endoscope, st.entry, st.axis)
     model = spec.compile()
     endoscope.set_cable_rest_lengths(spec, model)

@@ -7,18 +7,15 @@ adapts it to dm_control's ``Physics`` / ``Task`` / ``control.Environment``.
 from __future__ import annotations
 
 import collections
-import os
 
-os.environ.setdefault("MUJOCO_GL", "egl")  # headless by default; dm_control picks it at import
+import numpy as np
+from dm_control import mujoco as dm_mujoco  # mjendo's __init__ has chosen the GL backend by now
+from dm_control.rl import control
+from dm_control.suite import base
+from dm_env import specs
 
-import numpy as np  # noqa: E402
-from dm_control import mujoco as dm_mujoco  # noqa: E402
-from dm_control.rl import control  # noqa: E402
-from dm_control.suite import base  # noqa: E402
-from dm_env import specs  # noqa: E402
-
-from mjendo.config import PAPER_ACTION_LIMIT, task_config  # noqa: E402
-from mjendo.task import ACTION_SIZE, FORCE_BLOCKS, OBS_BLOCKS, NavigationTask  # noqa: E402
+from mjendo.config import PAPER_ACTION_LIMIT, task_config
+from mjendo.task import ACTION_SIZE, FORCE_BLOCKS, OBS_BLOCKS, NavigationTask
 
 
 class Physics(dm_mujoco.Physics):

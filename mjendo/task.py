@@ -114,7 +114,6 @@ class NavigationTask:
         sim.clear_warnings()  # counts belong to the previous episode
         if self.cfg.randomize_phase and sim.f0:
             sim.data.time = float(rng.uniform(0.0, 2 * sim.half_period))
-        self.target = int(rng.choice(self.targets))
         self.pulls[:] = 0.0
         self.insertion = 0.0
         self.prev_axial = 0.0
@@ -124,7 +123,15 @@ class NavigationTask:
         sim.set_controls(self.pulls, self.insertion)
         mujoco.mj_forward(sim.model, sim.data)
         self.contact = sim.contact()
+        return self.set_target(int(rng.choice(self.targets)))
+
+    def set_target(self, index: int) -> np.ndarray:
+        """Aim at another vertex of the list (e.g. to replay a chosen target); returns the observation."""
+        if index not in set(self.targets.tolist()):
+            raise ValueError(f"target {index} is not in target list {self.target_list}: {self.targets.tolist()}")
+        self.target = int(index)
         self._mark_target(False)
+        mujoco.mj_kinematics(self.sim.model, self.sim.data)  # place the moved marker for the first frame
         return self.observation()
 
     def target_pos(self) -> np.ndarray:

@@ -112,3 +112,13 @@ def load_controller(spec: str, task: NavigationTask | None = None):
     if task is not None and hasattr(ctrl, "check"):
         ctrl.check(task)
     return ctrl
+
+
+def rollout(env, ctrl, seed: int = 0, target: int | None = None) -> dict:
+    """Run one episode of ``ctrl`` in a Gymnasium ``EndoscopeEnv``; returns the last step's info."""
+    obs, info = env.reset(seed=seed, options={"target_index": target} if target is not None else None)
+    ctrl.reset(env.task)
+    while True:
+        obs, _, term, trunc, info = env.step(ctrl.act(obs, env.task))
+        if term or trunc:
+            return info

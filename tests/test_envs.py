@@ -9,6 +9,7 @@ import mjendo  # noqa: F401  (registers the ids)
 from mjendo.baseline import DLSController
 from mjendo.config import ConfigError
 from mjendo.envs import EndoscopeEnv
+from mjendo.policies import rollout
 
 IDS = ["mjendo/FE-v0", "mjendo/SE-v0", "mjendo/DE-v0", "mjendo/UE1-v0", "mjendo/UE2-v0", "endogym-v0"]
 
@@ -19,7 +20,7 @@ def test_check_env(env_id):
     check_env(env.unwrapped, skip_render_check=True)
 
 
-def rollout(seed, steps=20, env_name="DE"):
+def seeded_trajectory(seed, steps=20, env_name="DE"):
     env = EndoscopeEnv(env_name)
     rng = np.random.default_rng(123)
     obs, info = env.reset(seed=seed)
@@ -31,8 +32,8 @@ def rollout(seed, steps=20, env_name="DE"):
 
 
 def test_same_seed_same_trajectory_and_seeds_vary_targets():
-    t1, a = rollout(7)
-    t2, b = rollout(7)
+    t1, a = seeded_trajectory(7)
+    t2, b = seeded_trajectory(7)
     assert t1 == t2
     np.testing.assert_array_equal(a, b)
     env = EndoscopeEnv("SE")
@@ -162,15 +163,7 @@ def test_baseline_reaches_free_space_targets_in_fe():
     env = EndoscopeEnv("FE", max_steps=80)
     ctrl = DLSController(env.task)
     free = [t for t in env.task.stomach.info["free_reachable_targets"] if t in set(env.task.targets.tolist())]
-    reached = []
-    for target in free[:12]:
-        obs, _ = env.reset(seed=0, options={"target_index": target})
-        ctrl.reset(env.task)
-        for _ in range(80):
-            obs, _, term, trunc, info = env.step(ctrl.act(obs, env.task))
-            if term or trunc:
-                break
-        reached.append(info["is_success"])
+    reached = [rollout(env, ctrl, target=t)["is_success"] for t in free[:12]]
     assert sum(reached) >= 3, reached
 
 

@@ -10,6 +10,7 @@ import pytest
 from mjendo.baseline import DLSController
 from mjendo.config import ConfigError
 from mjendo.envs import EndoscopeEnv
+from mjendo.policies import rollout
 from mjendo.viewer import project, record
 
 
@@ -24,15 +25,7 @@ def reachable_target():
     env = EndoscopeEnv("FE", max_steps=80)
     ctrl = DLSController(env.task)
     for t in env.task.stomach.info["free_reachable_targets"]:
-        if t not in set(env.task.targets.tolist()):
-            continue
-        obs, _ = env.reset(seed=0, options={"target_index": t})
-        ctrl.reset(env.task)
-        for _ in range(80):
-            obs, _, term, trunc, info = env.step(ctrl.act(obs, env.task))
-            if term or trunc:
-                break
-        if info["is_success"]:
+        if t in set(env.task.targets.tolist()) and rollout(env, ctrl, target=t)["is_success"]:
             return t
     pytest.fail("the baseline reached no free-space target")
 

@@ -93,6 +93,30 @@ def env_figure(env: str, fidelity: str, repeats: int, steps: int) -> dict:
             "step_cost_over_physics": statistics.median(ratio), "substeps": sub}
 
 
+def training_figure(vec_env: str, steps: int) -> dict:
+    """PPO throughput for policy E's config, updates included, with a Dummy or Subproc VecEnv."""
+    import torch
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecNormalize
+
+    from mjendo.train import load_config, make_env
+
+    torch.set_num_threads(1)
+    cfg = load_config("E")
+    vec = SubprocVecEnv if vec_env == "subproc" else DummyVecEnv
+    venv = VecNormalize(vec([make_env(cfg, i) for i in range(cfg["n_envs"])]))
+    ppo = dict(cfg["ppo"])
+    arch, log_std = ppo.pop("net_arch"), ppo.pop("log_std_init")
+    model = PPO("MlpPolicy", venv, device="cpu", seed=0, policy_kwargs={
+        "net_arch": {"pi": arch, "vf": arch}, "activation_fn": torch.nn.Tanh, "log_std_init": log_std}, **ppo)
+    model.learn(2048)  # warm-up: process start, first rollout
+    t0 = time.perf_counter()
+    model.learn(steps, reset_num_timesteps=False)
+    rate = steps / (time.perf_counter() - t0)
+    venv.close()
+    return {"figure": "training", "vec_env": vec_env, "steps_per_s": rate, "n_envs": cfg["n_envs"]}
+
+
 def wall_figure(env: str, fidelity: str) -> dict:
     """Peak-to-peak motion of the forced vertices over one load cycle (mm)."""
     from mjendo import anatomy
@@ -112,6 +136,8 @@ def wall_figure(env: str, fidelity: str) -> dict:
 def _child(args) -> None:
     if args.figure == "physics":
         out = physics_figure(args.env, args.fidelity, args.repeats, args.seconds)
+    elif args.figure == "training":
+        out = training_figure(args.vec_env, args.steps)
     elif args.figure == "env":
         out = env_figure(args.env, args.fidelity, args.repeats, args.steps)
     else:
@@ -131,13 +157,14 @@ def _run(argv: list[str]) -> dict:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m mjendo.bench", description=__doc__)
     ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
-    ap.add_argument("--figure", default="physics", choices=["physics", "env", "wall"])
+    ap.add_argument("--figure", default="physics", choices=["physics", "env", "wall", "training"])
+    ap.add_argument("--vec-env", default="subproc", choices=["subproc", "dummy"])
     ap.add_argument("--env", default="DE")
     ap.add_argument("--fidelity", default="fast")
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--seconds", type=float, default=1.0, help="simulated seconds per physics repeat")
     ap.add_argument("--steps", type=int, default=200, help="env steps per env repeat")
-    ap.add_argument("--only", choices=["physics", "env", "wall"], help="run one group of figures")
+    ap.add_argument("--only", choices=["physics", "env", "wall", "training"], help="run one group of figures")
     args = ap.parse_args(argv)
     if args.child:
         _child(args)
@@ -156,6 +183,11 @@ def main(argv: list[str] | None = None) -> int:
             r = _run(["--figure", "env", "--env", env, "--fidelity", fid, *common])
             print(f"{env + ' ' + fid:<22}{r['env_steps_per_s']:>12.0f}{r['step_cost_over_physics']:>22.3f}",
                   flush=True)
+    if args.only in (None, "training"):
+        print(f"\n{'PPO training, policy E':<24}{'steps/s (updates incl.)':>26}")
+        for vec in ("dummy", "subproc"):
+            r = _run(["--figure", "training", "--vec-env", vec, "--steps", "8192"])
+            print(f"{vec + ' x' + str(r['n_envs']):<24}{r['steps_per_s']:>26.0f}", flush=True)
     if args.only in (None, "wall"):
         print(f"\n{'wall motion':<14}{'fidelity':<9}{'p2p forced vertices (mm)':>26}")
         for fid in ("fast", "full"):

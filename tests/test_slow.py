@@ -1,0 +1,39 @@
+"""Longer checks (pytest -m slow): regenerated target lists, and the full-FEM stomach's load response."""
+
+import numpy as np
+import pytest
+
+from mjendo import anatomy, targets
+from mjendo.sim import Simulator
+
+pytestmark = pytest.mark.slow
+
+
+def test_committed_target_lists_are_what_exploration_gives(stomach):
+    cand, best = targets.explore(progress=False)
+    a, b = targets.split(cand, best, stomach)
+    assert a == stomach.targets_a and b == stomach.targets_b
+
+
+@pytest.mark.parametrize("env,scale", [("DE", 1.0), ("UE2", 3.0)])
+def test_full_fem_wall_follows_the_load(stomach, env, scale):
+    sim = Simulator(env, "full")
+    sim.set_controls(np.zeros(4), sim.insertion_range[0])
+    z = []
+    while sim.time < 6.0:
+        sim.step(1)
+        z.append(sim.vertices(stomach.forced)[:, 2].mean())
+    z = np.array(z)
+    t = np.arange(1, len(z) + 1) * sim.model.opt.timestep
+    at = {x: z[np.argmin(np.abs(t - x))] for x in (3.95, 5.95)}
+    p2p_mm = (at[5.95] - at[3.95]) * 1e3
+    assert 2.0 * scale < p2p_mm < 15.0 * scale
+
+
+def test_full_and_fast_agree_on_the_anchors(stomach):
+    for fid in ("fast", "full"):
+        sim = Simulator("SE", fid)
+        x0 = sim.vertices(stomach.fixed)
+        sim.step(300)
+        assert np.abs(sim.vertices(stomach.fixed) - x0).max() < 1e-3
+    assert anatomy.load().fixed == stomach.fixed

@@ -240,6 +240,12 @@ def train(policy: str, timesteps: int | None = None, seed: int | None = None, n_
 
     start = model.num_timesteps
     total = int(cfg["total_timesteps"])
+    if start >= total and (run / MODEL_FILE).exists():
+        venv.close()
+        print(f"{run} is complete ({start} steps)")
+        if ship:
+            print(f"shipped to {ship_policy(run, policy)}")
+        return run
     cb = _callbacks(cfg, run, eval_env, start, total)
     # SIGTERM (e.g. a scheduler) stops like Ctrl-C: checkpoint, then exit.
     signal.signal(signal.SIGTERM, lambda *_: (_ for _ in ()).throw(KeyboardInterrupt()))

@@ -27,7 +27,6 @@ from mjendo.config import PAPER_EVAL_STEPS, PAPER_RESULTS, PAPER_SUCCESS_MM, Con
 ROOT = Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "eval" / "results"
 CONTROLLERS = ("A", "B", "C", "D", "E", "baseline")
-FORCE_AWARE = {"A": False, "B": False, "C": True, "D": False, "E": True, "baseline": True}
 
 
 def cells(controllers=CONTROLLERS) -> list[tuple[str, str]]:
@@ -59,11 +58,11 @@ class Trial:
 def run_trials(controller: str, env_name: str, seeds: list[int], keep_paths: bool = False) -> tuple[list, list]:
     """Run trials of one cell; a broken policy marks every trial with its error instead of raising."""
     from mjendo.envs import EndoscopeEnv
-    from mjendo.policies import load_controller
+    from mjendo.policies import force_obs_of, load_controller
 
     trials, paths = [], []
     try:
-        env = EndoscopeEnv(env_name, force_obs=FORCE_AWARE.get(controller, True), max_steps=PAPER_EVAL_STEPS)
+        env = EndoscopeEnv(env_name, force_obs=force_obs_of(controller), max_steps=PAPER_EVAL_STEPS)
         ctrl = load_controller(controller, env.task)
     except Exception as exc:  # reported per cell, the other cells still run
         msg = f"{type(exc).__name__}: {exc}".replace("\n", " ")

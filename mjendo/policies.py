@@ -56,7 +56,6 @@ class PPOController:
         meta = directory / META_FILE
         self.meta = json.loads(meta.read_text()) if meta.exists() else {}
         self.name = self.meta.get("policy", directory.name)
-        self.force_obs = self.meta.get("force_obs")
         self.n_obs = int(self.model.observation_space.shape[0])
 
     def check(self, task: NavigationTask) -> None:
@@ -89,6 +88,18 @@ class RandomController:
 
     def act(self, obs, task: NavigationTask) -> np.ndarray:
         return self.rng.uniform(-0.4, 0.4, 5)
+
+
+def force_obs_of(spec: str) -> bool:
+    """Whether the controller named by ``spec`` needs the force-aware observation."""
+    if spec in POLICY_NAMES:
+        from mjendo.train import load_config  # the training config says what each policy observes
+
+        return bool(load_config(spec)["force_obs"])
+    p = Path(spec)
+    if p.is_dir() or p.suffix == ".zip":
+        return PPOController(p.parent if p.suffix == ".zip" else p).n_obs == obs_size(True)
+    return True  # baseline, random: they ignore the observation's force part
 
 
 def load_controller(spec: str, task: NavigationTask | None = None):

@@ -89,7 +89,6 @@ class NavigationTask:
         self.prev_axial = 0.0
         self.steps = 0
         self.peak_force = 0.0
-        self.success_once = False
         self.contact = None
 
     # ------------------------------------------------------------- episodes
@@ -119,7 +118,6 @@ class NavigationTask:
         self.prev_axial = 0.0
         self.steps = 0
         self.peak_force = 0.0
-        self.success_once = False
         sim.set_controls(self.pulls, self.insertion)
         mujoco.mj_forward(sim.model, sim.data)
         self.contact = sim.contact()
@@ -189,7 +187,6 @@ class NavigationTask:
         ok = instability is None
         success = dist < PAPER_SUCCESS_MM and ok
         exited = float(to_mm((tip - self.origin) @ self.axis)) < PAPER_EXIT_X_MM and ok
-        self.success_once |= success
         self.sim.set_target_marker(target, TARGET_YELLOW if success else TARGET_WHITE)
         terms = {
             "reward_distance": -dist,

@@ -24,7 +24,7 @@ import mjendo  # noqa: F401  (chooses the GL backend first)
 from mjendo.config import ConfigError
 from mjendo.envs import EndoscopeEnv
 from mjendo.gl import NO_GL_HELP, NoOpenGLError
-from mjendo.policies import PolicyError, load_controller
+from mjendo.policies import PolicyError, force_obs_of, load_controller
 from mjendo.task import NavigationTask
 
 CAMERA_NAMES = {"external": "external", "tip": "tip_camera"}
@@ -143,7 +143,7 @@ def record(path: Path, policy: str = "E", env_name: str = "DE", episodes: int = 
     if not path.parent.exists() or not _writable(path.parent):
         raise ConfigError(f"cannot write {path}: folder {path.parent} is missing or read-only")
     width, height = width - width % 2, height - height % 2  # H.264 needs even sizes
-    env = EndoscopeEnv(env_name, force_obs=_force_obs(policy), max_steps=max_steps, fidelity=fidelity)
+    env = EndoscopeEnv(env_name, force_obs=force_obs_of(policy), max_steps=max_steps, fidelity=fidelity)
     ctrl = load_controller(policy, env.task)
     rec = Recorder(env, camera, width, height)
     writer = imageio.get_writer(str(path), fps=fps, codec="libx264", pixelformat="yuv420p", quality=7,
@@ -173,10 +173,6 @@ def record(path: Path, policy: str = "E", env_name: str = "DE", episodes: int = 
     return {"frames": frames, "successes": successes, "episodes": episodes}
 
 
-def _force_obs(policy: str) -> bool:
-    return policy not in ("A", "B", "D")
-
-
 def _writable(folder: Path) -> bool:
     import os
 
@@ -187,7 +183,7 @@ def interactive(policy: str, env_name: str, seed: int) -> None:
     """Window with keyboard driving (needs a display)."""
     import mujoco.viewer
 
-    env = EndoscopeEnv(env_name, force_obs=_force_obs(policy), max_steps=10**9)
+    env = EndoscopeEnv(env_name, force_obs=policy == "keyboard" or force_obs_of(policy), max_steps=10**9)
     style(env.task.sim.model)
     ctrl = load_controller(policy, env.task) if policy != "keyboard" else None
     obs, _ = env.reset(seed=seed)

@@ -29,6 +29,7 @@ from mjendo.policies import MODEL_FILE, NORM_FILE, POLICIES_DIR, POLICY_NAMES
 ROOT = Path(__file__).resolve().parent.parent
 CONFIG_FILE = ROOT / "train" / "policies.yaml"
 CKPT_DIR = "checkpoints"
+BEST_DIR = "best"
 
 
 def load_config(policy: str, path: Path | None = None, **overrides) -> dict:
@@ -86,6 +87,7 @@ def _callbacks(cfg: dict, run: Path, eval_env, start_steps: int, total: int):
             self.t0, self.s0 = time.time(), start_steps
             self.recent: list[float] = []
             self.last_eval = float("nan")
+            self.best = _best_so_far(run)
 
         def _on_step(self) -> bool:
             for info in self.locals["infos"]:
@@ -111,6 +113,10 @@ def _callbacks(cfg: dict, run: Path, eval_env, start_steps: int, total: int):
         def evaluate(self):
             sr, err, rew = evaluate_policy(self.model, eval_env, cfg["eval_episodes"], self.training_env)
             self.last_eval = sr
+            if (sr, -err) >= self.best:  # keep the best-evaluated policy, as rl-zoo does
+                self.best = (sr, -err)
+                save_policy(self.model, run / BEST_DIR, {"timesteps": self.num_timesteps, "eval_success_rate": sr,
+                                                         "eval_mean_final_mm": err})
             self.evals.writerow([self.num_timesteps, sr, err, rew, time.time() - self.t0])
             self.logger.record("eval/success_rate", sr)
             self.logger.record("eval/mean_final_mm", err)
@@ -181,6 +187,24 @@ def save_checkpoint(model, run: Path) -> Path:
     return path
 
 
+def save_policy(model, directory: Path, meta: dict) -> None:
+    """model.zip + vecnormalize.pkl + meta.json in ``directory``."""
+    directory.mkdir(parents=True, exist_ok=True)
+    model.save(str(directory / MODEL_FILE))
+    env = model.get_env()
+    if hasattr(env, "save"):
+        env.save(str(directory / NORM_FILE))
+    (directory / "meta.json").write_text(json.dumps(meta, indent=1) + "\n")
+
+
+def _best_so_far(run: Path) -> tuple[float, float]:
+    meta = run / BEST_DIR / "meta.json"
+    if not meta.exists():
+        return (-1.0, -float("inf"))
+    m = json.loads(meta.read_text())
+    return (m["eval_success_rate"], -m["eval_mean_final_mm"])
+
+
 def _writable(path: Path) -> None:
     try:
         path.mkdir(parents=True, exist_ok=True)
@@ -229,6 +253,9 @@ def train(policy: str, timesteps: int | None = None, seed: int | None = None, n_
         ppo = dict(cfg["ppo"])
         arch = ppo.pop("net_arch")
         log_std = ppo.pop("log_std_init")
+        if ppo.pop("lr_schedule", "constant") == "linear":
+            lr0 = float(ppo["learning_rate"])
+            ppo["learning_rate"] = lambda remaining: lr0 * remaining
         model = PPO("MlpPolicy", venv, seed=cfg["seed"], device="cpu", verbose=0,
                     tensorboard_log=str(run / "tb"),
                     policy_kwargs={"net_arch": {"pi": arch, "vf": arch}, "activation_fn": torch.nn.Tanh,
@@ -279,12 +306,24 @@ def train(policy: str, timesteps: int | None = None, seed: int | None = None, n_
 
 
 def ship_policy(run: Path, policy: str) -> Path:
-    """Copy a finished run's policy into models/policies/<policy>/ (what users get)."""
+    """Copy a finished run into models/policies/<policy>/ (what users get).
+
+    The shipped weights are the best-evaluated ones (``best/``) when they
+    evaluated at least as well as the final ones; meta.json says which.
+    """
     dest = POLICIES_DIR / policy
     dest.mkdir(parents=True, exist_ok=True)
-    for name in (MODEL_FILE, NORM_FILE, "meta.json", "curve.png", "config.yaml", "evaluations.csv", "episodes.csv"):
+    for name in ("meta.json", "curve.png", "config.yaml", "evaluations.csv", "episodes.csv"):
         if (run / name).exists():
             shutil.copy2(run / name, dest / name)
+    best = run / BEST_DIR
+    source = best if (best / MODEL_FILE).exists() else run
+    for name in (MODEL_FILE, NORM_FILE):
+        shutil.copy2(source / name, dest / name)
+    meta = json.loads((dest / "meta.json").read_text())
+    meta["shipped_weights"] = json.loads((best / "meta.json").read_text()) | {"from": "best"} \
+        if source == best else {"from": "final", "timesteps": meta["timesteps"]}
+    (dest / "meta.json").write_text(json.dumps(meta, indent=1) + "\n")
     return dest
 
 

@@ -34,8 +34,9 @@ def short_run(tmp_path_factory):
 def test_short_training_writes_a_loadable_policy(short_run):
     run, _ = short_run
     for name in ("model.zip", "vecnormalize.pkl", "meta.json", "config.yaml", "episodes.csv",
-                 "evaluations.csv", "curve.png"):
+                 "evaluations.csv", "curve.png", "best/model.zip", "best/vecnormalize.pkl", "best/meta.json"):
         assert (run / name).exists(), name
+    assert json.loads((run / "best" / "meta.json").read_text())["timesteps"] in (256, 512)
     ctrl = PPOController(run)
     env = EndoscopeEnv("DE", force_obs=False)
     obs, _ = env.reset(seed=0)

@@ -42,7 +42,7 @@ clean:
 	rm -rf $(VENV) *.egg-info
 
 # The paper's study: every shipped policy and the baseline, next to the paper's tables.
-TRIALS ?= 100
+TRIALS ?= 200
 eval: $(STAMP)
 	$(BIN)/python -m mjendo.evaluation --trials $(TRIALS)
 

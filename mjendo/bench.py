@@ -117,6 +117,22 @@ def training_figure(vec_env: str, steps: int) -> dict:
     return {"figure": "training", "vec_env": vec_env, "steps_per_s": rate, "n_envs": cfg["n_envs"]}
 
 
+def video_figure(steps: int) -> dict:
+    """Headless 640x480 recording rate, simulation included (random policy in DE)."""
+    import tempfile
+    from pathlib import Path
+
+    from mjendo.viewer import record
+
+    with tempfile.TemporaryDirectory() as d:
+        record(Path(d) / "warm.mp4", policy="random", env_name="DE", episodes=1, max_steps=5)
+        t0 = time.perf_counter()
+        r = record(Path(d) / "bench.mp4", policy="random", env_name="DE", episodes=1, max_steps=steps,
+                   width=640, height=480)
+        dt = time.perf_counter() - t0
+    return {"figure": "video", "frames_per_s": r["frames"] / dt, "frames": r["frames"]}
+
+
 def wall_figure(env: str, fidelity: str) -> dict:
     """Peak-to-peak motion of the forced vertices over one load cycle (mm)."""
     from mjendo import anatomy
@@ -136,6 +152,8 @@ def wall_figure(env: str, fidelity: str) -> dict:
 def _child(args) -> None:
     if args.figure == "physics":
         out = physics_figure(args.env, args.fidelity, args.repeats, args.seconds)
+    elif args.figure == "video":
+        out = video_figure(args.steps)
     elif args.figure == "training":
         out = training_figure(args.vec_env, args.steps)
     elif args.figure == "env":
@@ -157,14 +175,15 @@ def _run(argv: list[str]) -> dict:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m mjendo.bench", description=__doc__)
     ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
-    ap.add_argument("--figure", default="physics", choices=["physics", "env", "wall", "training"])
+    ap.add_argument("--figure", default="physics", choices=["physics", "env", "wall", "training", "video"])
     ap.add_argument("--vec-env", default="subproc", choices=["subproc", "dummy"])
     ap.add_argument("--env", default="DE")
     ap.add_argument("--fidelity", default="fast")
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--seconds", type=float, default=1.0, help="simulated seconds per physics repeat")
     ap.add_argument("--steps", type=int, default=200, help="env steps per env repeat")
-    ap.add_argument("--only", choices=["physics", "env", "wall", "training"], help="run one group of figures")
+    ap.add_argument("--only", choices=["physics", "env", "wall", "training", "video"],
+                    help="run one group of figures")
     args = ap.parse_args(argv)
     if args.child:
         _child(args)
@@ -188,6 +207,10 @@ def main(argv: list[str] | None = None) -> int:
         for vec in ("dummy", "subproc"):
             r = _run(["--figure", "training", "--vec-env", vec, "--steps", "8192"])
             print(f"{vec + ' x' + str(r['n_envs']):<24}{r['steps_per_s']:>26.0f}", flush=True)
+    if args.only in (None, "video"):
+        r = _run(["--figure", "video", "--steps", "120"])
+        print(f"\nheadless recording 640x480, DE, simulation included: {r['frames_per_s']:.1f} frames/s "
+              f"({r['frames']} frames)", flush=True)
     if args.only in (None, "wall"):
         print(f"\n{'wall motion':<14}{'fidelity':<9}{'p2p forced vertices (mm)':>26}")
         for fid in ("fast", "full"):

@@ -240,11 +240,13 @@ class TaskConfig:
     # Control period (paper: not given): 30 ms, 33 Hz; 128 steps = 3.84 s,
     # about one 4 s breathing cycle. Must be a multiple of the timestep.
     control_period_s: float = 0.03
-    # Action unit -> physical increment per control step. 0.4 (the limit)
-    # moves a cable 1 mm and the insertion 2 mm per step: full bending in
-    # ~14 steps, the far wall in ~60 steps (80 per trial).
+    # Action unit -> physical increment per control step (paper: not given).
+    # 0.4 (the limit) moves a cable 1 mm (full bending in ~14 steps) and the
+    # insertion 4 mm per step (133 mm/s): the farthest target of list A
+    # (136 mm along the axis) in 34 of the 80 steps of a trial. At 2 mm/step
+    # it took 68, leaving a moving target no margin (E's far-target failures).
     cable_mm_per_unit: float = 2.5
-    insertion_mm_per_unit: float = 5.0
+    insertion_mm_per_unit: float = 10.0
     force_ref_n: float = 1.0  # the observation's force is force / force_ref
     force_penalty: float = 0.0  # optional safety term: -force_penalty * |F| (N) per step
     randomize_phase: bool = True  # start each episode at a random phase of the load

@@ -24,7 +24,7 @@ class EndoscopeEnv(gym.Env):
     | index | meaning | unit and scale |
     |---|---|---|
     | 0-3 | cables +x, -x, +y, -y of the active segment | change of cable pull, 1 unit = 2.5 mm (0.4: 1 mm per step); positive pulls, negative pays out |
-    | 4 | insertion through the cardia | change of insertion depth, 1 unit = 5 mm (0.4: 2 mm per step) |
+    | 4 | insertion through the cardia | change of insertion depth, 1 unit = 10 mm (0.4: 4 mm per step) |
 
     ## Observation space
 

@@ -15,7 +15,7 @@ import numpy as np
 
 from mjendo.anatomy import MODELS
 from mjendo.config import ConfigError
-from mjendo.task import NavigationTask, obs_size
+from mjendo.task import NavigationTask, action_scales, obs_size
 
 # Shipped policies; MJENDO_POLICIES points evaluation and viewer at another set.
 POLICIES_DIR = Path(os.environ.get("MJENDO_POLICIES", MODELS / "policies"))
@@ -62,6 +62,12 @@ class PPOController:
         if self.n_obs != obs_size(task.cfg.force_obs):
             raise PolicyError(f"policy {self.name} expects {self.n_obs} observations but the task gives "
                               f"{obs_size(task.cfg.force_obs)}: use force_obs={self.n_obs == obs_size(True)}")
+        trained = self.meta.get("action_scales")
+        now = action_scales(task.cfg)
+        if trained is not None and trained != now:
+            diff = ", ".join(f"{k} {trained.get(k)} (task: {v})" for k, v in now.items() if trained.get(k) != v)
+            raise PolicyError(f"policy {self.name} was trained with other action scales: {diff}; retrain it with "
+                              "`make train` or build the task with the policy's values")
 
     def reset(self, task: NavigationTask) -> None:
         self.check(task)

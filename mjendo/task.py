@@ -39,6 +39,14 @@ TARGET_WHITE = (1.0, 1.0, 1.0, 1.0)
 TARGET_YELLOW = (1.0, 0.85, 0.0, 1.0)
 
 
+# What an action means physically; a policy trained under other values would misbehave.
+ACTION_SCALE_FIELDS = ("control_period_s", "cable_mm_per_unit", "insertion_mm_per_unit")
+
+
+def action_scales(cfg: TaskConfig) -> dict[str, float]:
+    return {k: float(getattr(cfg, k)) for k in ACTION_SCALE_FIELDS}
+
+
 def obs_size(force_obs: bool) -> int:
     return sum(n for _, n, _ in OBS_BLOCKS + (FORCE_BLOCKS if force_obs else []))
 

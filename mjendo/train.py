@@ -293,7 +293,7 @@ def train(policy: str, timesteps: int | None = None, seed: int | None = None, n_
     meta = {"policy": policy, "env": cfg["env"], "force_obs": cfg["force_obs"], "seed": cfg["seed"],
             "timesteps": int(model.num_timesteps), "wall_s": prev.get("wall_s", 0.0) + wall,
             "steps_per_s": (model.num_timesteps - start) / max(wall, 1e-9), "config": cfg,
-            "command": " ".join(sys.argv)}
+            "action_scales": _action_scales(cfg), "command": " ".join(sys.argv)}
     (run / "meta.json").write_text(json.dumps(meta, indent=1) + "\n")
     venv.close()
     from mjendo.figures import training_curve
@@ -305,24 +305,28 @@ def train(policy: str, timesteps: int | None = None, seed: int | None = None, n_
     return run
 
 
-def ship_policy(run: Path, policy: str) -> Path:
-    """Copy a finished run into models/policies/<policy>/ (what users get).
+def _action_scales(cfg: dict) -> dict[str, float]:
+    """What the run's actions meant (mjendo's current task defaults); recorded so a loader can check."""
+    from mjendo.config import task_config
+    from mjendo.task import action_scales
 
-    The shipped weights are the best-evaluated ones (``best/``) when they
-    evaluated at least as well as the final ones; meta.json says which.
+    return action_scales(task_config(env=cfg["env"], fidelity=cfg["fidelity"]))
+
+
+def ship_policy(run: Path, policy: str) -> Path:
+    """Copy a finished run's final weights into models/policies/<policy>/ (what users get).
+
+    Final, not ``best/``: with the learning rate decayed to 0 the end of the run
+    is the converged policy, and picking the maximum of noisy 40-trial
+    evaluations chose a worse one for E (docs/training.md).
     """
     dest = POLICIES_DIR / policy
     dest.mkdir(parents=True, exist_ok=True)
-    for name in ("meta.json", "curve.png", "config.yaml", "evaluations.csv", "episodes.csv"):
+    for name in ("meta.json", "curve.png", "config.yaml", "evaluations.csv", "episodes.csv", MODEL_FILE, NORM_FILE):
         if (run / name).exists():
             shutil.copy2(run / name, dest / name)
-    best = run / BEST_DIR
-    source = best if (best / MODEL_FILE).exists() else run
-    for name in (MODEL_FILE, NORM_FILE):
-        shutil.copy2(source / name, dest / name)
     meta = json.loads((dest / "meta.json").read_text())
-    meta["shipped_weights"] = json.loads((best / "meta.json").read_text()) | {"from": "best"} \
-        if source == best else {"from": "final", "timesteps": meta["timesteps"]}
+    meta.setdefault("action_scales", _action_scales(meta["config"]))
     (dest / "meta.json").write_text(json.dumps(meta, indent=1) + "\n")
     return dest
 

@@ -10,6 +10,7 @@ import pytest
 from mjendo.config import ConfigError
 from mjendo.envs import EndoscopeEnv
 from mjendo.policies import PolicyError, PPOController, load_controller
+from mjendo.task import NavigationTask
 from mjendo.train import latest_checkpoint, load_config, train
 
 
@@ -46,6 +47,11 @@ def test_short_training_writes_a_loadable_policy(short_run):
     env.step(a)
     with pytest.raises(PolicyError, match="expects 11 observations"):
         ctrl.check(EndoscopeEnv("DE", force_obs=True).task)
+    # The run records what its actions meant; a task with other scales is refused.
+    assert json.loads((run / "meta.json").read_text())["action_scales"] == {
+        "control_period_s": 0.03, "cable_mm_per_unit": 2.5, "insertion_mm_per_unit": 10.0}
+    with pytest.raises(PolicyError, match="insertion_mm_per_unit 10.0 \\(task: 5.0\\)"):
+        ctrl.check(NavigationTask(env="DE", force_obs=False, insertion_mm_per_unit=5.0))
 
 
 def test_resume_continues_the_step_count(short_run):

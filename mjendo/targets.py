@@ -20,30 +20,33 @@ from mjendo import anatomy
 REACH_MM = 6.0  # a candidate is kept when exploration brought the tip this close
 EPISODES = 400
 STEPS = 128
+# The exploration's own step sizes (those that produced the committed lists):
+# tuning the policies' action scale must not move the targets.
+EXPLORE_SCALES = {"cable_mm_per_unit": 2.5, "insertion_mm_per_unit": 5.0}
 
 
 def explore(episodes: int = EPISODES, seed: int = 0, fidelity: str = "fast", progress: bool = True) -> tuple:
     """Closest tip approach (mm) to every candidate over seeded random exploration in SE."""
     from tqdm import tqdm
 
-    from mjendo.envs import EndoscopeEnv
+    from mjendo.task import NavigationTask
 
     st = anatomy.load()
     cand = np.array(sorted(set(st.info.get("candidates", st.targets_a + st.targets_b))))
-    env = EndoscopeEnv("SE", fidelity=fidelity, max_steps=STEPS, randomize_phase=False)
+    task = NavigationTask(env="SE", fidelity=fidelity, max_steps=STEPS, randomize_phase=False, **EXPLORE_SCALES)
     rng = np.random.default_rng(seed)
     best = np.full(len(cand), np.inf)
     for ep in tqdm(range(episodes), desc="exploring", disable=not progress):
-        env.reset(seed=seed + ep)
+        task.reset(np.random.default_rng(seed + ep))
         a = np.zeros(5)
         for k in range(STEPS):
             if k % 8 == 0:  # piecewise-constant actions explore further than white noise
                 a = rng.uniform(-0.4, 0.4, 5)
                 a[4] = rng.uniform(-0.1, 0.4)
-            _, _, term, _, info = env.step(a)
-            d = np.linalg.norm(env.task.sim.vertices(cand) - env.task.sim.tip_pos(), axis=1) * 1e3
+            res = task.step(a)
+            d = np.linalg.norm(task.sim.vertices(cand) - task.sim.tip_pos(), axis=1) * 1e3
             best = np.minimum(best, d)
-            if term and info["exited"]:
+            if res.terminated and res.info["exited"]:
                 break
     return cand, best
 

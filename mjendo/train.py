@@ -216,6 +216,23 @@ def _writable(path: Path) -> None:
                           "folder") from exc
 
 
+def build_ppo(cfg: dict, venv, tensorboard_log: str | None = None):
+    """A fresh PPO from a resolved config: the one place the config's PPO fields become SB3 arguments."""
+    import torch
+    from stable_baselines3 import PPO
+
+    ppo = dict(cfg["ppo"])
+    arch = ppo.pop("net_arch")
+    log_std = ppo.pop("log_std_init")
+    if ppo.pop("lr_schedule", "constant") == "linear":
+        lr0 = float(ppo["learning_rate"])
+        ppo["learning_rate"] = lambda remaining: lr0 * remaining
+    return PPO("MlpPolicy", venv, seed=cfg["seed"], device="cpu", verbose=0, tensorboard_log=tensorboard_log,
+               policy_kwargs={"net_arch": {"pi": arch, "vf": arch}, "activation_fn": torch.nn.Tanh,
+                              "log_std_init": log_std},
+               **ppo)
+
+
 def train(policy: str, timesteps: int | None = None, seed: int | None = None, n_envs: int | None = None,
           out: Path = ROOT / "runs", run_name: str | None = None, fresh: bool = False,
           vec_env: str | None = None, ship: bool = False, config_file: Path | None = None) -> Path:
@@ -250,17 +267,7 @@ def train(policy: str, timesteps: int | None = None, seed: int | None = None, n_
     else:
         if cfg["normalize"]:
             venv = VecNormalize(venv, gamma=cfg["ppo"]["gamma"])
-        ppo = dict(cfg["ppo"])
-        arch = ppo.pop("net_arch")
-        log_std = ppo.pop("log_std_init")
-        if ppo.pop("lr_schedule", "constant") == "linear":
-            lr0 = float(ppo["learning_rate"])
-            ppo["learning_rate"] = lambda remaining: lr0 * remaining
-        model = PPO("MlpPolicy", venv, seed=cfg["seed"], device="cpu", verbose=0,
-                    tensorboard_log=str(run / "tb"),
-                    policy_kwargs={"net_arch": {"pi": arch, "vf": arch}, "activation_fn": torch.nn.Tanh,
-                                   "log_std_init": log_std},
-                    **ppo)
+        model = build_ppo(cfg, venv, tensorboard_log=str(run / "tb"))
         (run / "config.yaml").write_text(yaml.safe_dump(cfg, sort_keys=False))
     if cfg["normalize"]:
         eval_env = VecNormalize(eval_env, training=False, norm_reward=False, gamma=cfg["ppo"]["gamma"])

@@ -86,3 +86,11 @@ def test_unwritable_run_folder(tmp_path):
     blocker.write_text("x")
     with pytest.raises(ConfigError, match="cannot write the run folder"):
         train("E", timesteps=8, out=blocker)
+
+
+def test_bench_training_figure_builds_the_shipped_ppo():
+    # The bench must time the same PPO that training builds (it once broke on a new config key).
+    from mjendo.bench import training_figure
+
+    r = training_figure("dummy", 2048)
+    assert r["n_envs"] == 2 and r["steps_per_s"] > 20

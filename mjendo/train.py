@@ -256,13 +256,14 @@ def train(policy: str, timesteps: int | None = None, seed: int | None = None, n_
     if ckpt is not None:
         steps = int(ckpt.stem.split("_")[1])
         norm = ckpt.parent / f"vecnormalize_{steps}.pkl"
-        if cfg["normalize"]:
-            venv = VecNormalize.load(str(norm), venv)
         try:
+            if cfg["normalize"]:
+                venv = VecNormalize.load(str(norm), venv)
             model = PPO.load(str(ckpt), env=venv, device="cpu")
         except Exception as exc:
-            raise ConfigError(f"checkpoint {ckpt} is unreadable ({exc}); delete it to fall back to the "
-                              "previous one, or pass --fresh") from exc
+            venv.close()
+            raise ConfigError(f"checkpoint {ckpt} (with {norm.name}) is unreadable ({exc}); delete both to "
+                              "fall back to the previous one, or pass --fresh") from exc
         print(f"resuming {run} from {ckpt.name} ({steps} steps)")
     else:
         if cfg["normalize"]:

@@ -1,6 +1,7 @@
 """Training end to end (a few hundred steps), resume, policy loading and bad input."""
 
 import json
+import shutil
 import subprocess
 import sys
 
@@ -62,6 +63,16 @@ def test_resume_continues_the_step_count(short_run):
     assert latest_checkpoint(run) is not None
     steps = np.loadtxt(run / "episodes.csv", delimiter=",", skiprows=1, ndmin=2)[:, 0]
     assert np.all(np.diff(steps) >= 0)  # one monotone log across the resume
+
+
+@pytest.mark.parametrize("broken", ["model_512.zip", "vecnormalize_512.pkl"])
+def test_unreadable_checkpoint_is_named_on_resume(short_run, tmp_path, broken):
+    run, _ = short_run
+    copy = tmp_path / "D" / run.name
+    shutil.copytree(run, copy)
+    (latest_checkpoint(copy).parent / broken).write_bytes(b"truncated by a crash")
+    with pytest.raises(ConfigError, match=r"model_512.zip \(with vecnormalize_512.pkl\) is unreadable .*--fresh"):
+        train("D", timesteps=1024, out=tmp_path, config_file=run.parent.parent / "policies.yaml")
 
 
 def test_bad_policy_value_fails_fast():

@@ -262,8 +262,9 @@ def train(policy: str, timesteps: int | None = None, seed: int | None = None, n_
             model = PPO.load(str(ckpt), env=venv, device="cpu")
         except Exception as exc:
             venv.close()
-            raise ConfigError(f"checkpoint {ckpt} (with {norm.name}) is unreadable ({exc}); delete both to "
-                              "fall back to the previous one, or pass --fresh") from exc
+            files = f"{ckpt} (with {norm.name})" if cfg["normalize"] else str(ckpt)
+            raise ConfigError(f"checkpoint {files} is unreadable ({exc}); delete it to fall back to the "
+                              "previous one, or pass --fresh") from exc
         print(f"resuming {run} from {ckpt.name} ({steps} steps)")
     else:
         if cfg["normalize"]:

@@ -2,8 +2,9 @@
 
 Each figure runs in a fresh single-threaded process so figures do not share
 caches or compete for a core; repeats are timed back to back and the median
-is reported. Also prints the peak-to-peak wall motion under the periodic
-load (the calibration figure of docs/physics.md).
+is reported. ``--only fidelity`` prints the fast stomach next to the full
+FEM one (target motion, press forces, held-press speeds; the calibration
+figures of docs/physics.md, protocols in :mod:`mjendo.fidelity`).
 """
 
 from __future__ import annotations
@@ -129,20 +130,16 @@ def video_figure(steps: int) -> dict:
     return {"figure": "video", "frames_per_s": r["frames"] / dt, "frames": r["frames"]}
 
 
-def wall_figure(env: str, fidelity: str) -> dict:
-    """Peak-to-peak motion of the forced vertices over one load cycle (mm)."""
-    from mjendo import anatomy
-    from mjendo.sim import Simulator
+def fidelity_figure(env: str, fidelity: str) -> dict:
+    """Target motion (DE/UE1/UE2), or press forces and held-press speeds (SE): mjendo.fidelity's protocols."""
+    from mjendo import fidelity as fid_protocols
 
-    st = anatomy.load()
-    sim = Simulator(env, fidelity)
-    sim.set_controls(np.zeros(4), sim.insertion_range[0])
-    z = []
-    while sim.time < 4 * sim.half_period:
-        sim.step(1)
-        if sim.time >= 2 * sim.half_period:  # after the first cycle
-            z.append(sim.vertices(st.forced)[:, 2].mean())
-    return {"figure": "wall", "env": env, "fidelity": fidelity, "p2p_mm": (max(z) - min(z)) * 1e3}
+    if env == "SE":
+        sim = fid_protocols.simulator("SE", fidelity)
+        forces = {p.name: fid_protocols.press_force(sim, p) for p in fid_protocols.PRESSES}
+        speeds = {p.name: fid_protocols.hold_speeds(sim, p) for p in fid_protocols.PRESSES}
+        return {"figure": "fidelity", "env": env, "fidelity": fidelity, "forces": forces, "speeds": speeds}
+    return {"figure": "fidelity", "env": env, "fidelity": fidelity, **fid_protocols.motion_summary(env, fidelity)}
 
 
 def _child(args) -> None:
@@ -155,7 +152,7 @@ def _child(args) -> None:
     elif args.figure == "env":
         out = env_figure(args.env, args.fidelity, args.repeats, args.steps)
     else:
-        out = wall_figure(args.env, args.fidelity)
+        out = fidelity_figure(args.env, args.fidelity)
     print(json.dumps(out))
 
 
@@ -168,10 +165,27 @@ def _run(argv: list[str]) -> dict:
     return json.loads(res.stdout.strip().splitlines()[-1])
 
 
+def _fidelity_table() -> None:
+    """Fast next to full: target motion under the load, press forces, speeds while a press is held."""
+    print(f"\n{'target motion p2p (mm)':<24}{'fast median/max':>18}{'full median/max':>18}{'fast/full':>14}")
+    for env in ("DE", "UE1", "UE2"):
+        a, b = (_run(["--figure", "fidelity", "--env", env, "--fidelity", f]) for f in ("fast", "full"))
+        print(f"{env:<24}{a['median_mm']:>9.1f}/{a['max_mm']:<8.1f}{b['median_mm']:>9.1f}/{b['max_mm']:<8.1f}"
+              f"{a['median_mm'] / b['median_mm']:>7.2f}/{a['max_mm'] / b['max_mm']:<6.2f}", flush=True)
+    a, b = (_run(["--figure", "fidelity", "--env", "SE", "--fidelity", f]) for f in ("fast", "full"))
+    print(f"\n{'press (SE), held 1 s':<24}{'fast N':>10}{'full N':>10}{'fast/full':>11}"
+          f"{'fast tip/wall mm/s':>22}{'full tip/wall mm/s':>22}")
+    for name, fa in a["forces"].items():
+        fb = b["forces"][name]
+        (ta, wa), (tb, wb) = a["speeds"][name], b["speeds"][name]
+        print(f"{name:<24}{fa:>10.3f}{fb:>10.3f}{fa / fb:>11.2f}{ta:>12.2f}/{wa:<9.2f}{tb:>12.2f}/{wb:<9.2f}")
+    print("speeds: mean over 0.5 s after 2 s of hold (mjendo.fidelity.hold_speeds)", flush=True)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m mjendo.bench", description=__doc__)
     ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
-    ap.add_argument("--figure", default="physics", choices=["physics", "env", "wall", "training", "video"])
+    ap.add_argument("--figure", default="physics", choices=["physics", "env", "fidelity", "training", "video"])
     ap.add_argument("--vec-env", default="subproc", choices=["subproc", "dummy"])
     ap.add_argument("--n-envs", type=int, help="training figure: environments (default: policy E's config)")
     ap.add_argument("--env", default="DE")
@@ -179,7 +193,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--seconds", type=float, default=1.0, help="simulated seconds per physics repeat")
     ap.add_argument("--steps", type=int, default=200, help="env steps per env repeat")
-    ap.add_argument("--only", choices=["physics", "env", "wall", "training", "video"],
+    ap.add_argument("--only", choices=["physics", "env", "fidelity", "training", "video"],
                     help="run one group of figures")
     args = ap.parse_args(argv)
     if args.child:
@@ -217,12 +231,8 @@ def main(argv: list[str] | None = None) -> int:
         r = _run(["--figure", "video", "--steps", "120"])
         print(f"\nheadless recording 640x480, DE, simulation included: {r['frames_per_s']:.1f} frames/s "
               f"({r['frames']} frames)", flush=True)
-    if args.only in (None, "wall"):
-        print(f"\n{'wall motion':<14}{'fidelity':<9}{'p2p forced vertices (mm)':>26}")
-        for fid in ("fast", "full"):
-            for env in ("DE", "UE1", "UE2"):
-                r = _run(["--figure", "wall", "--env", env, "--fidelity", fid])
-                print(f"{env:<14}{fid:<9}{r['p2p_mm']:>26.2f}", flush=True)
+    if args.only in (None, "fidelity"):
+        _fidelity_table()
     return 0
 
 

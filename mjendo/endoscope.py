@@ -42,11 +42,15 @@ def max_cable_pull(cfg: Endoscope) -> float:
     return from_mm(cfg.cable_offset_mm) * np.radians(150.0) + cfg.cable_max_tension_n / cfg.cable_kp_n_per_m
 
 
-def add_endoscope(spec: mujoco.MjSpec, cfg: Endoscope, entry: np.ndarray, axis: np.ndarray) -> None:
+def add_endoscope(spec: mujoco.MjSpec, cfg: Endoscope, entry: np.ndarray, axis: np.ndarray,
+                  friction: float) -> None:
     """Add carriage, links, cables and actuators to ``spec``.
 
     At insertion 0 the tip is ``cfg.start_depth_mm`` past ``entry`` along
     ``axis``; the rest of the simulated tube trails back out of the cardia.
+    ``friction`` is the tube's sliding friction: MuJoCo combines a contact's
+    two coefficients by their maximum, so the tube must carry the wall's value
+    (a default geom's 1.0 would override the paper's 0.1).
     """
     radius = from_mm(cfg.diameter_mm) / 2
     la, lp = from_mm(cfg.active_length_mm), from_mm(cfg.passive_length_mm)
@@ -81,7 +85,7 @@ def add_endoscope(spec: mujoco.MjSpec, cfg: Endoscope, entry: np.ndarray, axis: 
         end = length - radius if last else length
         body.add_geom(name=f"geom_{name}", type=mujoco.mjtGeom.mjGEOM_CAPSULE,
                       fromto=[0, 0, 0, 0, 0, end], size=[radius, 0, 0], density=density,
-                      contype=1, conaffinity=2, condim=3,
+                      contype=1, conaffinity=2, condim=3, friction=[friction, 0.005, 0.0001],
                       rgba=[0.2, 0.22, 0.28, 1] if active else [0.38, 0.4, 0.45, 1])
         # Cables run in sheaths through the passive tube: they start at the
         # base of the active segment (distal end of the last passive link).

@@ -14,7 +14,15 @@ import mujoco
 import numpy as np
 
 from mjendo import anatomy, endoscope
-from mjendo.config import ENVIRONMENTS, FIDELITIES, PAPER_SUCCESS_MM, ConfigError, SceneConfig, scene_config
+from mjendo.config import (
+    ENVIRONMENTS,
+    FIDELITIES,
+    PAPER_SUCCESS_MM,
+    ConfigError,
+    Fidelity,
+    SceneConfig,
+    scene_config,
+)
 from mjendo.units import from_mm
 
 SCENES_DIR = anatomy.MODELS / "scenes"
@@ -157,7 +165,7 @@ def build_spec(cfg: SceneConfig, stomach: anatomy.Stomach | None = None,
     tgt = spec.worldbody.add_body(name=TARGET_BODY, mocap=True, pos=st.entry)
     # Marker radius = the paper's 3 mm success distance.
     tgt.add_site(name=TARGET_BODY, size=[from_mm(PAPER_SUCCESS_MM), 0, 0], rgba=[1, 1, 1, 1])
-    endoscope.add_endoscope(spec, cfg.endoscope, st.entry, st.axis)
+    endoscope.add_endoscope(spec, cfg.endoscope, st.entry, st.axis, cfg.contact.friction)
     model = spec.compile()
     endoscope.set_cable_rest_lengths(spec, model)
     if cfg.env.has_stomach:
@@ -213,11 +221,12 @@ def _add_anchors_and_load(spec: mujoco.MjSpec, model: mujoco.MjModel,
         if abs(coef) > 1e-9:
             t.wrap_joint(name, float(coef))
     a = spec.add_actuator(name=LOAD, target=LOAD, trntype=mujoco.mjtTrn.mjTRN_TENDON)
+    a.gear[0] = cfg.fidelity.load_gain  # ctrl stays the paper's force per vertex
     a.ctrlrange = [-10.0, 10.0]
     a.ctrllimited = mujoco.mjtLimited.mjLIMITED_TRUE
 
 
-def scene_xml(env: str, fidelity: str = "fast", check: bool = True, **overrides) -> str:
+def scene_xml(env: str, fidelity: str | Fidelity = "fast", check: bool = True, **overrides) -> str:
     """The scene file's text for an environment and fidelity, probed for usable physics."""
     cfg = scene_config(env, fidelity, **overrides)
     spec = build_spec(cfg)

@@ -34,6 +34,10 @@ OBS_BLOCKS = [("ee_to_target", 3, "mm"), ("ee_velocity", 3, "mm/s"), ("cable_len
               ("previous_axial_action", 1, "action units")]
 FORCE_BLOCKS = [("contact", 1, "0/1"), ("force", 3, "N / force_ref_n")]
 SETTLE_S = 1.0  # the stomach settles under gravity (and load) before episodes start
+# Start states are snapshots of the stomach in its periodic steady state, this
+# many per load cycle (every 50 ms of a 4 s cycle): an episode starts at its
+# drawn phase without a transient (docs/physics.md "Episode start").
+PHASES_PER_CYCLE = 80
 
 TARGET_WHITE = (1.0, 1.0, 1.0, 1.0)
 TARGET_YELLOW = (1.0, 0.85, 0.0, 1.0)
@@ -90,7 +94,8 @@ class NavigationTask:
         self.axis = self.stomach.axis
         self.origin = self.stomach.entry - from_mm(PAPER_EXIT_X_MM) * self.axis
         self._fe_targets = None if self.sim.has_stomach else free_targets(c.fidelity)
-        self._settled = self._settle()
+        self._starts = self._settle()
+        self._settled = self._starts[0]
         self.target = int(self.targets[0])
         self.pulls = np.zeros(4)
         self.insertion = 0.0
@@ -100,12 +105,29 @@ class NavigationTask:
         self.contact = None
 
     # ------------------------------------------------------------- episodes
-    def _settle(self) -> np.ndarray:
+    def _settle(self) -> list[np.ndarray]:
+        """Start states: the settled stomach at phase 0, and under a periodic load one per phase.
+
+        The load runs one full cycle to reach its periodic steady state (the
+        wall settles within about 0.5 s of each switch), then the next cycle
+        is recorded; each snapshot keeps its own time, so the load's phase
+        is right after a reset.
+        """
         sim = self.sim
         sim.reset()
         sim.set_controls(np.zeros(4), 0.0)
-        sim.step(int(round(SETTLE_S / sim.model.opt.timestep)))
-        return self._get_state()
+        dt = sim.model.opt.timestep
+        sim.step(int(round(SETTLE_S / dt)))
+        if not sim.f0:
+            return [self._get_state()]
+        cycle = int(round(2 * sim.half_period / dt))
+        every = max(1, cycle // PHASES_PER_CYCLE)
+        sim.step(cycle - int(round(SETTLE_S / dt)) % cycle)  # whole cycles since t = 0: phase 0
+        starts = []
+        for _ in range(cycle // every):
+            starts.append(self._get_state())
+            sim.step(every)
+        return starts
 
     def _get_state(self) -> np.ndarray:
         m, d = self.sim.model, self.sim.data
@@ -117,10 +139,9 @@ class NavigationTask:
     def reset(self, rng: np.random.Generator) -> np.ndarray:
         """Start an episode: settled stomach, straight scope, a random target."""
         sim = self.sim
-        mujoco.mj_setState(sim.model, sim.data, self._settled, mujoco.mjtState.mjSTATE_INTEGRATION)
+        k = int(rng.integers(len(self._starts))) if self.cfg.randomize_phase else 0
+        mujoco.mj_setState(sim.model, sim.data, self._starts[k], mujoco.mjtState.mjSTATE_INTEGRATION)
         sim.clear_warnings()  # counts belong to the previous episode
-        if self.cfg.randomize_phase and sim.f0:
-            sim.data.time = float(rng.uniform(0.0, 2 * sim.half_period))
         self.pulls[:] = 0.0
         self.insertion = 0.0
         self.prev_axial = 0.0

@@ -7,7 +7,7 @@ POLICY  ?= E
 ENV     ?=
 FIDELITY ?= fast
 
-.PHONY: setup test bench lint models train eval video clean
+.PHONY: setup test bench lint models train finetune eval video clean
 
 $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
@@ -38,13 +38,18 @@ train: $(STAMP)
 	$(BIN)/python -m mjendo.train --policy $(POLICY) $(if $(TIMESTEPS),--timesteps $(TIMESTEPS)) \
 	  $(if $(SEED),--seed $(SEED)) $(if $(N_ENVS),--n-envs $(N_ENVS))
 
+# Fine-tune a shipped policy in the full FEM stomach (train/policies.yaml's finetune block).
+finetune: $(STAMP)
+	$(BIN)/python -m mjendo.train --policy $(POLICY) --init-from models/policies/$(POLICY) \
+	  $(if $(TIMESTEPS),--timesteps $(TIMESTEPS)) $(if $(SEED),--seed $(SEED))
+
 clean:
 	rm -rf $(VENV) *.egg-info
 
 # The paper's study: every shipped policy and the baseline, next to the paper's tables.
 TRIALS ?= 200
 eval: $(STAMP)
-	$(BIN)/python -m mjendo.evaluation --trials $(TRIALS)
+	$(BIN)/python -m mjendo.evaluation --trials $(TRIALS) --fidelity $(FIDELITY)
 
 # Headless recording of shipped policy E in DE.
 video: $(STAMP)

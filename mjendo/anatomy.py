@@ -222,12 +222,7 @@ def build(shape: StomachShape | None = None, scope: Endoscope | None = None) -> 
     scope = scope or Endoscope()
     verts, faces, lm = lumen_surface(shape)
     mesh = tetmesh.extrude_wall(verts, faces, from_mm(shape.wall_thickness_mm),
-                                lm["entry"], from_mm(shape.cardia_radius_mm))
-    n_surf = len(verts)
-    # extrude_wall keeps lumen vertices first, so surface ids survive for the
-    # meridians except vertices dropped by the cardia cut.
-    keep = np.ones(2 * n_surf, bool)
-    keep[:n_surf] = np.isin(np.arange(n_surf), np.unique(mesh.tets[mesh.inner[mesh.tets]]))
+                                lm["entry"], from_mm(shape.cardia_radius_mm), shape.wall_layers)
     info = measure(mesh.points)
     t = from_mm(shape.wall_thickness_mm)
     # Greater curvature: outer wall from the cardia over the fundus dome to

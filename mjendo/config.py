@@ -44,6 +44,7 @@ class StomachShape:
     # A distended adult gastric wall measures about 3-5 mm; 5 mm keeps the
     # single-layer tets of a coarse mesh reasonably shaped.
     wall_thickness_mm: float = 5.0
+    wall_layers: int = 1  # tet layers through the wall (the refinement study uses 2)
     n_around: int = 12  # vertices around each ring (even: both curvatures)
     ring_spacing_mm: float = 20.0  # target spacing of rings along the centreline
     # Cardia (gastro-oesophageal junction): on the lesser-curvature side, just

@@ -55,14 +55,16 @@ class Trial:
     error: str = ""
 
 
-def run_trials(controller: str, env_name: str, seeds: list[int], keep_paths: bool = False) -> tuple[list, list]:
+def run_trials(controller: str, env_name: str, seeds: list[int], keep_paths: bool = False,
+               fidelity: str = "fast") -> tuple[list, list]:
     """Run trials of one cell; a broken policy marks every trial with its error instead of raising."""
     from mjendo.envs import EndoscopeEnv
     from mjendo.policies import force_obs_of, load_controller
 
     trials, paths = [], []
     try:
-        env = EndoscopeEnv(env_name, force_obs=force_obs_of(controller), max_steps=PAPER_EVAL_STEPS)
+        env = EndoscopeEnv(env_name, force_obs=force_obs_of(controller), max_steps=PAPER_EVAL_STEPS,
+                           fidelity=fidelity)
         ctrl = load_controller(controller, env.task)
     except Exception as exc:  # reported per cell, the other cells still run
         msg = f"{type(exc).__name__}: {exc}".replace("\n", " ")
@@ -95,12 +97,12 @@ def run_trials(controller: str, env_name: str, seeds: list[int], keep_paths: boo
 
 
 def _job(args):
-    controller, env_name, seeds, keep = args
+    controller, env_name, seeds, keep, fidelity = args
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     import torch
 
     torch.set_num_threads(1)
-    return run_trials(controller, env_name, seeds, keep)
+    return run_trials(controller, env_name, seeds, keep, fidelity)
 
 
 def wilson(successes: int, n: int, z: float = 1.96) -> tuple[float, float]:
@@ -154,10 +156,12 @@ def _git_commit() -> str:
         return "unknown"
 
 
-def write_report(rows: list[dict], out: Path, command: str, wall_s: float, n: int) -> Path:
+def write_report(rows: list[dict], out: Path, command: str, wall_s: float, n: int, fidelity: str = "fast") -> Path:
+    stomach = {"fast": "the fast (reduced-order, calibrated) stomach", "full": "the full per-vertex FEM stomach"}
     lines = [
         "# mjendo evaluation vs the paper",
         "",
+        f"Stomach: {stomach[fidelity]} (`fidelity={fidelity}`).  ",
         f"Command: `{command}`  ",
         f"Commit: `{_git_commit()}`, wall time {wall_s / 60:.1f} min, {n} trials per cell, 80 steps each "
         f"(success: final tip error < {PAPER_SUCCESS_MM:g} mm).",
@@ -192,7 +196,7 @@ def _write_csv(path: Path, rows: list[dict]) -> None:
 
 
 def evaluate(trials: int = 200, controllers=CONTROLLERS, workers: int = 2, out: Path = RESULTS, seed: int = 0,
-             command: str = "make eval") -> dict:
+             command: str = "make eval", fidelity: str = "fast", envs: tuple[str, ...] | None = None) -> dict:
     from tqdm import tqdm
 
     for c in controllers:
@@ -201,24 +205,25 @@ def evaluate(trials: int = 200, controllers=CONTROLLERS, workers: int = 2, out: 
     out.mkdir(parents=True, exist_ok=True)
     chunk = max(1, math.ceil(trials / 4))
     jobs = []
-    for c, e in cells(controllers):
+    study = [(c, e) for c, e in cells(controllers) if envs is None or e in envs]
+    for c, e in study:
         seeds = [seed * 100003 + i for i in range(trials)]
         for j in range(0, trials, chunk):
             keep = c == "E" and e == "DE" and j == 0
-            jobs.append((c, e, seeds[j:j + chunk], keep))
+            jobs.append((c, e, seeds[j:j + chunk], keep, fidelity))
     t0 = time.time()
     all_trials, paths = [], []
     with get_context("spawn").Pool(workers) as pool:
         for ts, ps in tqdm(pool.imap_unordered(_job, jobs), total=len(jobs), desc="evaluating", unit="chunk"):
             all_trials += ts
             paths += ps
-    order = {k: i for i, k in enumerate(cells(controllers))}
+    order = {k: i for i, k in enumerate(study)}
     all_trials.sort(key=lambda t: (order[(t.controller, t.env)], t.trial))
     wall = time.time() - t0
     _write_csv(out / "trials.csv", [asdict(t) for t in all_trials])
     rows = summarize(all_trials)
     _write_csv(out / "summary.csv", rows)
-    report = write_report(rows, out, command, wall, trials)
+    report = write_report(rows, out, command, wall, trials, fidelity)
     from mjendo import figures
 
     figures.all_figures(rows, paths, out)
@@ -235,11 +240,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--policies", default=",".join(CONTROLLERS), help="comma-separated: A-E, baseline")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--out", type=Path, default=RESULTS)
+    ap.add_argument("--fidelity", choices=["fast", "full"], default="fast", help="stomach to evaluate in")
+    ap.add_argument("--envs", help="comma-separated subset of FE, SE, DE, UE1, UE2 (default: all of the study)")
+    ap.add_argument("--out", type=Path, help="results folder (default eval/results, or eval/results/full)")
     a = ap.parse_args(argv)
+    out = a.out or (RESULTS if a.fidelity == "fast" else RESULTS / a.fidelity)
     try:
-        evaluate(a.trials, tuple(a.policies.split(",")), a.workers, a.out, a.seed,
-                 command="python -m mjendo.evaluation " + " ".join(argv if argv is not None else sys.argv[1:]))
+        evaluate(a.trials, tuple(a.policies.split(",")), a.workers, out, a.seed,
+                 command="python -m mjendo.evaluation " + " ".join(argv if argv is not None else sys.argv[1:]),
+                 fidelity=a.fidelity, envs=tuple(a.envs.split(",")) if a.envs else None)
     except ConfigError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

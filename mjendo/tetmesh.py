@@ -106,29 +106,32 @@ def check_surface(points: np.ndarray, faces: np.ndarray) -> None:
 
 
 def extrude_wall(points: np.ndarray, faces: np.ndarray, thickness: float,
-                 entry: np.ndarray, entry_radius: float) -> TetMesh:
-    """Wall of given thickness outside the lumen surface, opened at ``entry``.
+                 entry: np.ndarray, entry_radius: float, layers: int = 1) -> TetMesh:
+    """Wall of given thickness outside the lumen surface in ``layers`` prism layers, opened at ``entry``.
 
     Prisms whose lumen triangle lies within ``entry_radius`` of the entry point
     are removed: that hole is the cardia the endoscope passes through.
     """
+    if layers < 1:
+        raise MeshError(f"the wall needs at least one element layer (got {layers})")
     check_surface(points, faces)
     normals = vertex_normals(points, faces)
     n = len(points)
-    outer = points + thickness * normals
+    shells = [points + (k / layers) * thickness * normals for k in range(layers + 1)]
     centroids = points[faces].mean(axis=1)
     keep = np.linalg.norm(centroids - entry, axis=1) > entry_radius
     if keep.all():
         raise MeshError("the entry point is farther than entry_radius from every lumen "
                         "triangle: move it onto the surface or enlarge the radius")
-    tets = [t for f in faces[keep] for t in _split_prism(np.array([*f, *(f + n)]))]
+    tets = [t for k in range(layers) for f in faces[keep]
+            for t in _split_prism(np.array([*(f + k * n), *(f + (k + 1) * n)]))]
     tets = np.asarray(tets, dtype=np.int64)
-    all_points = np.concatenate([points, outer])
-    inner = np.arange(2 * n) < n
+    all_points = np.concatenate(shells)
+    inner = np.arange(len(all_points)) < n
     # Drop vertices that only belonged to removed prisms; reindex.
-    used = np.zeros(2 * n, bool)
+    used = np.zeros(len(all_points), bool)
     used[tets.ravel()] = True
-    remap = -np.ones(2 * n, np.int64)
+    remap = -np.ones(len(all_points), np.int64)
     remap[used] = np.arange(used.sum())
     mesh = TetMesh(all_points[used], remap[tets], inner[used])
     return orient(mesh)

@@ -42,9 +42,17 @@ def load_config(policy: str, path: Path | None = None, **overrides) -> dict:
     raw = yaml.safe_load(path.read_text())
     cfg = {**raw["defaults"], **raw["policies"][policy], "policy": policy}
     cfg["ppo"] = dict(raw["defaults"]["ppo"])
+    finetune = cfg.pop("finetune", {})
+    if overrides.get("init_from") is not None:
+        # Fine-tuning (e.g. in the full FEM stomach): the config's finetune block, then the CLI's values.
+        cfg["ppo"]["learning_rate"] = finetune.get("learning_rate", cfg["ppo"]["learning_rate"])
+        cfg = {**cfg, **{k: v for k, v in finetune.items() if k != "learning_rate"}}
+        cfg["init_from"] = str(overrides["init_from"])
     for k, v in overrides.items():
-        if v is not None:
+        if v is not None and k not in ("init_from", "learning_rate"):
             cfg[k] = v
+    if overrides.get("learning_rate") is not None:
+        cfg["ppo"]["learning_rate"] = float(overrides["learning_rate"])
     if cfg["vec_env"] not in ("subproc", "dummy"):
         raise ConfigError(f"vec_env must be 'subproc' or 'dummy', not {cfg['vec_env']!r}")
     return cfg
@@ -233,12 +241,35 @@ def build_ppo(cfg: dict, venv, tensorboard_log: str | None = None):
                **ppo)
 
 
+def _start_from(cfg: dict, venv):
+    """A PPO initialised from a trained policy folder, with a fresh learning-rate schedule (fine-tuning)."""
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    src = Path(cfg["init_from"])
+    if not (src / MODEL_FILE).exists():
+        raise ConfigError(f"--init-from {src} holds no {MODEL_FILE}; give a policy folder such as "
+                          "models/policies/E or a finished run folder")
+    if cfg["normalize"]:
+        venv = VecNormalize.load(str(src / NORM_FILE), venv)  # keeps adapting to the new stomach
+        venv.training = True
+    lr0 = float(cfg["ppo"]["learning_rate"])
+    schedule = (lambda remaining: lr0 * remaining) if cfg["ppo"].get("lr_schedule") == "linear" else (lambda _: lr0)
+    model = PPO.load(str(src / MODEL_FILE), env=venv, device="cpu",
+                     custom_objects={"learning_rate": schedule, "lr_schedule": schedule})
+    model.num_timesteps = 0  # this run's budget counts from here
+    return model
+
+
 def train(policy: str, timesteps: int | None = None, seed: int | None = None, n_envs: int | None = None,
           out: Path = ROOT / "runs", run_name: str | None = None, fresh: bool = False,
-          vec_env: str | None = None, ship: bool = False, config_file: Path | None = None) -> Path:
+          vec_env: str | None = None, ship: bool = False, config_file: Path | None = None,
+          fidelity: str | None = None, init_from: Path | None = None, learning_rate: float | None = None) -> Path:
     """Train (or resume) one policy; returns the run folder."""
-    cfg = load_config(policy, config_file, total_timesteps=timesteps, seed=seed, n_envs=n_envs, vec_env=vec_env)
-    run = Path(out) / policy / (run_name or f"seed{cfg['seed']}")
+    cfg = load_config(policy, config_file, total_timesteps=timesteps, seed=seed, n_envs=n_envs, vec_env=vec_env,
+                      fidelity=fidelity, init_from=init_from, learning_rate=learning_rate)
+    default_name = f"seed{cfg['seed']}" + ("" if cfg["fidelity"] == "fast" else f"-{cfg['fidelity']}")
+    run = Path(out) / policy / (run_name or default_name)
     _writable(run)
     if fresh and run.exists():
         shutil.rmtree(run)
@@ -267,9 +298,14 @@ def train(policy: str, timesteps: int | None = None, seed: int | None = None, n_
                               "previous one, or pass --fresh") from exc
         print(f"resuming {run} from {ckpt.name} ({steps} steps)")
     else:
-        if cfg["normalize"]:
-            venv = VecNormalize(venv, gamma=cfg["ppo"]["gamma"])
-        model = build_ppo(cfg, venv, tensorboard_log=str(run / "tb"))
+        if cfg.get("init_from"):
+            model = _start_from(cfg, venv)
+            model.tensorboard_log = str(run / "tb")
+            print(f"fine-tuning {cfg['init_from']} in the {cfg['fidelity']} stomach")
+        else:
+            if cfg["normalize"]:
+                venv = VecNormalize(venv, gamma=cfg["ppo"]["gamma"])
+            model = build_ppo(cfg, venv, tensorboard_log=str(run / "tb"))
         (run / "config.yaml").write_text(yaml.safe_dump(cfg, sort_keys=False))
     if cfg["normalize"]:
         eval_env = VecNormalize(eval_env, training=False, norm_reward=False, gamma=cfg["ppo"]["gamma"])
@@ -299,7 +335,8 @@ def train(policy: str, timesteps: int | None = None, seed: int | None = None, n_
     if cfg["normalize"]:
         model.get_env().save(str(run / NORM_FILE))
     prev = json.loads((run / "meta.json").read_text()) if (run / "meta.json").exists() else {}
-    meta = {"policy": policy, "env": cfg["env"], "force_obs": cfg["force_obs"], "seed": cfg["seed"],
+    meta = {"policy": policy, "env": cfg["env"], "fidelity": cfg["fidelity"], "force_obs": cfg["force_obs"],
+            "seed": cfg["seed"], "init_from": cfg.get("init_from"),
             "timesteps": int(model.num_timesteps), "wall_s": prev.get("wall_s", 0.0) + wall,
             "steps_per_s": (model.num_timesteps - start) / max(wall, 1e-9), "config": cfg,
             "action_scales": _action_scales(cfg), "command": " ".join(sys.argv)}
@@ -353,9 +390,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--fresh", action="store_true", help="discard an existing run instead of resuming")
     ap.add_argument("--ship", action="store_true", help="copy the final policy to models/policies/")
     ap.add_argument("--config", type=Path, help=f"training config (default {CONFIG_FILE.relative_to(ROOT)})")
+    ap.add_argument("--fidelity", choices=["fast", "full"], help="stomach to train in (default: the config's)")
+    ap.add_argument("--init-from", type=Path, metavar="POLICY_DIR",
+                    help="fine-tune a trained policy (e.g. models/policies/E) with the config's finetune block")
+    ap.add_argument("--learning-rate", type=float)
     a = ap.parse_args(argv)
     try:
-        train(a.policy, a.timesteps, a.seed, a.n_envs, a.out, a.run, a.fresh, a.vec_env, a.ship, a.config)
+        train(a.policy, a.timesteps, a.seed, a.n_envs, a.out, a.run, a.fresh, a.vec_env, a.ship, a.config,
+              a.fidelity, a.init_from, a.learning_rate)
     except ConfigError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -211,7 +211,8 @@ def read_msh(path: Path) -> tuple[np.ndarray, np.ndarray]:
     if not path.exists():
         raise MeshError(f"mesh file {path} does not exist")
     try:
-        m = meshio.read(str(path))
+        # Naming the format for .msh also keeps meshio from printing an empty line while it guesses.
+        m = meshio.read(str(path), file_format="gmsh" if path.suffix == ".msh" else None)
     except (Exception, SystemExit) as exc:  # meshio raises many types, even SystemExit
         raise MeshError(f"cannot read {path}: {exc}; export it as gmsh 4.1 (.msh)") from exc
     tets = [c.data for c in m.cells if c.type == "tetra"]

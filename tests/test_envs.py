@@ -188,3 +188,9 @@ def test_render_external_and_tip_cameras():
     env.close()
     assert frame.shape == (120, 320, 3)
     assert frame[:, :160].std() > 5 and frame[:, 160:].std() > 1  # neither view is blank
+
+
+def test_constructing_an_env_prints_nothing(capfd):
+    # meshio printed an empty line for every mesh it read while guessing the file format.
+    EndoscopeEnv("DE")
+    assert capfd.readouterr().out == ""

@@ -33,6 +33,33 @@ def short_run(tmp_path_factory):
     return run, resumed
 
 
+def test_fine_tuning_starts_from_the_policy_and_counts_its_own_steps(short_run, tmp_path):
+    import torch
+    from stable_baselines3 import PPO
+
+    src, _ = short_run
+    cfg_path = src.parent.parent / "policies.yaml"
+    # Two updates: with the linear schedule the last update of a run has a learning rate of 0.
+    run = train("D", timesteps=256, out=tmp_path, config_file=cfg_path, fidelity="fast", init_from=src,
+                learning_rate=1e-3)
+    meta = json.loads((run / "meta.json").read_text())
+    assert run.name == "seed0" and meta["init_from"] == str(src) and meta["timesteps"] == 256
+    assert meta["config"]["ppo"]["learning_rate"] == 1e-3
+    before, after = (PPO.load(str(d / "model.zip"), device="cpu").policy.state_dict() for d in (src, run))
+    changed = [k for k in before if not torch.equal(before[k], after[k])]
+    assert changed, "fine-tuning did not update the weights"
+    assert all(before[k].shape == after[k].shape for k in before)
+    with pytest.raises(ConfigError, match="holds no model.zip"):
+        train("D", timesteps=128, out=tmp_path / "x", config_file=cfg_path, init_from=tmp_path / "nothing")
+
+
+def test_fine_tune_config_block_applies_only_with_init_from(tmp_path):
+    assert load_config("E")["fidelity"] == "fast"
+    ft = load_config("E", init_from="models/policies/E")
+    assert ft["fidelity"] == "full" and ft["ppo"]["learning_rate"] == pytest.approx(1e-4)
+    assert ft["total_timesteps"] == 100000 and "finetune" not in ft
+
+
 def test_short_training_writes_a_loadable_policy(short_run):
     run, _ = short_run
     for name in ("model.zip", "vecnormalize.pkl", "meta.json", "config.yaml", "episodes.csv",

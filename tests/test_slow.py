@@ -9,6 +9,11 @@ from mjendo.sim import Simulator
 pytestmark = pytest.mark.slow
 
 
+@pytest.mark.xfail(strict=True, reason=(
+    "round 2 changed the physics (scope friction 1.0 -> 0.1, calibrated fast stomach): exploration now reaches "
+    "85 candidates, and re-splitting them moves 20 of the 28 new list-B targets out of list A, the list the "
+    "shipped policies trained on; the lists stay frozen until every policy is retrained on new ones "
+    "(docs/physics.md, Known gaps)"))
 def test_committed_target_lists_are_what_exploration_gives(stomach):
     cand, best = targets.explore(progress=False)
     a, b = targets.split(cand, best, stomach)

@@ -102,7 +102,7 @@ class NavigationTask:
         self.prev_axial = 0.0
         self.steps = 0
         self.peak_force = 0.0
-        self.contact = None
+        self.contact = self.sim.contact()  # a valid reading before the first reset (dm_env asks specs first)
 
     # ------------------------------------------------------------- episodes
     def _settle(self) -> list[np.ndarray]:

@@ -194,3 +194,22 @@ def test_constructing_an_env_prints_nothing(capfd):
     # meshio printed an empty line for every mesh it read while guessing the file format.
     EndoscopeEnv("DE")
     assert capfd.readouterr().out == ""
+
+
+@pytest.mark.parametrize("name", ["FE", "SE", "DE", "UE1", "UE2"])
+def test_dm_control_specs_before_and_after_reset(name):
+    # dm_env users ask for specs first; the force blocks read a contact before any reset.
+    from mjendo import suite
+
+    env = suite.load(name, force_obs=True)
+    before = env.observation_spec()
+    assert list(before) == ["ee_to_target", "ee_velocity", "cable_lengths", "previous_axial_action", "contact",
+                            "force"]
+    assert [s.shape for s in before.values()] == [(3,), (3,), (4,), (1,), (1,), (3,)]
+    ts = env.reset()
+    assert ts.first() and ts.reward is None and ts.discount is None
+    for key, spec in env.observation_spec().items():
+        assert spec.shape == before[key].shape and spec.dtype == np.float64
+        spec.validate(ts.observation[key])
+    ts = env.step(np.zeros(5))
+    assert ts.mid() and ts.discount == 1.0 and np.isfinite(ts.reward)

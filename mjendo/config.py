@@ -136,8 +136,9 @@ class Fidelity:
     # The discrete integrator solves M + hD + h^2 K iteratively with the same
     # iteration cap and tolerance as the constraint solver. An under-converged
     # solve feeds energy in: at 1e-4 the full stomach never came to rest under
-    # a held press (tip 24 mm/s, wall 29 mm/s); at 1e-7 it settles below
-    # 0.3 mm/s (docs/physics.md "Settling"; 1e-8 costs 15 % more). The fast
+    # a held press (tip 24 mm/s, wall 29 mm/s); at 1e-8 it settles below
+    # 0.4 mm/s (docs/physics.md "Settling"; 1e-7 left up to 0.86 mm/s, too
+    # close to the 1 mm/s bar, for 15-20 % more speed). The fast
     # stomach settles at 1e-6 (1e-5 leaves 1-6 mm/s; 1e-8 costs 40 % of its
     # speed). A held press needs 25-50 iterations, contact-rich sweeps
     # 300-600; a cap of 200 left the M + hD + h^2 K solve under-converged.
@@ -164,7 +165,7 @@ FIDELITIES: dict[str, Fidelity] = {
     # within 1.35x, target motion within 25 %.
     "fast": Fidelity("fast", "trilinear", (2, 2, 2), young_scale=0.05, load_gain=5.7),
     # Every mesh vertex is a 3-dof body: the per-vertex FEM stomach.
-    "full": Fidelity("full", "full", (1, 1, 1), tolerance=1e-7),
+    "full": Fidelity("full", "full", (1, 1, 1), tolerance=1e-8),
 }
 
 

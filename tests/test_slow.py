@@ -42,3 +42,13 @@ def test_full_and_fast_agree_on_the_anchors(stomach):
         sim.step(300)
         assert np.abs(sim.vertices(stomach.fixed) - x0).max() < 1e-3
     assert anatomy.load().fixed == stomach.fixed
+
+
+def test_fast_stomach_is_calibrated_to_the_full_one():
+    # Issue bars: target motion within +-25 %, press forces within a factor 1.5 (docs/physics.md).
+    from mjendo import fidelity
+
+    ratios = fidelity.compare("fast", "full")
+    for name, r in ratios.items():
+        bound = 1.5 if name.startswith("force") else 1.25
+        assert 1 / bound <= r <= bound, f"{name}: fast/full = {r:.2f}"

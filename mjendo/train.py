@@ -224,6 +224,14 @@ def _writable(path: Path) -> None:
                           "folder") from exc
 
 
+def learning_rate_schedule(cfg: dict):
+    """The config's rate as SB3 wants it: constant, or linear from learning_rate down to 0 at the budget's end."""
+    lr0 = float(cfg["ppo"]["learning_rate"])
+    if cfg["ppo"].get("lr_schedule", "constant") == "linear":
+        return lambda remaining: lr0 * remaining
+    return lambda _remaining: lr0
+
+
 def build_ppo(cfg: dict, venv, tensorboard_log: str | None = None):
     """A fresh PPO from a resolved config: the one place the config's PPO fields become SB3 arguments."""
     import torch
@@ -232,9 +240,8 @@ def build_ppo(cfg: dict, venv, tensorboard_log: str | None = None):
     ppo = dict(cfg["ppo"])
     arch = ppo.pop("net_arch")
     log_std = ppo.pop("log_std_init")
-    if ppo.pop("lr_schedule", "constant") == "linear":
-        lr0 = float(ppo["learning_rate"])
-        ppo["learning_rate"] = lambda remaining: lr0 * remaining
+    ppo.pop("lr_schedule", None)
+    ppo["learning_rate"] = learning_rate_schedule(cfg)
     return PPO("MlpPolicy", venv, seed=cfg["seed"], device="cpu", verbose=0, tensorboard_log=tensorboard_log,
                policy_kwargs={"net_arch": {"pi": arch, "vf": arch}, "activation_fn": torch.nn.Tanh,
                               "log_std_init": log_std},
@@ -253,8 +260,7 @@ def _start_from(cfg: dict, venv):
     if cfg["normalize"]:
         venv = VecNormalize.load(str(src / NORM_FILE), venv)  # keeps adapting to the new stomach
         venv.training = True
-    lr0 = float(cfg["ppo"]["learning_rate"])
-    schedule = (lambda remaining: lr0 * remaining) if cfg["ppo"].get("lr_schedule") == "linear" else (lambda _: lr0)
+    schedule = learning_rate_schedule(cfg)
     model = PPO.load(str(src / MODEL_FILE), env=venv, device="cpu",
                      custom_objects={"learning_rate": schedule, "lr_schedule": schedule})
     model.num_timesteps = 0  # this run's budget counts from here

@@ -7,7 +7,7 @@ POLICY  ?= E
 ENV     ?=
 FIDELITY ?= fast
 
-.PHONY: setup test bench lint models train finetune eval video clean
+.PHONY: setup test bench lint models train finetune ship eval video clean
 
 $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
@@ -38,6 +38,11 @@ train: $(STAMP)
 	$(BIN)/python -m mjendo.train --policy $(POLICY) $(if $(TIMESTEPS),--timesteps $(TIMESTEPS)) \
 	  $(if $(SEED),--seed $(SEED)) $(if $(N_ENVS),--n-envs $(N_ENVS))
 
+# Copy a finished run into models/policies/<POLICY>/ (RUN= another run folder name than seed0).
+RUN ?= seed0
+ship: $(STAMP)
+	$(BIN)/python -m mjendo.artifacts ship runs/$(POLICY)/$(RUN) $(POLICY)
+
 # Fine-tune a shipped policy in the full FEM stomach (train/policies.yaml's finetune block).
 finetune: $(STAMP)
 	$(BIN)/python -m mjendo.train --policy $(POLICY) --init-from models/policies/$(POLICY) \
@@ -46,10 +51,11 @@ finetune: $(STAMP)
 clean:
 	rm -rf $(VENV) *.egg-info
 
-# The paper's study: every shipped policy and the baseline, next to the paper's tables.
+# The paper's study: every shipped policy and the baseline, next to the paper's tables. Writes to
+# runs/eval/<fidelity>/ (untracked); OUT=eval/results regenerates the committed study.
 TRIALS ?= 200
 eval: $(STAMP)
-	$(BIN)/python -m mjendo.evaluation --trials $(TRIALS) --fidelity $(FIDELITY)
+	$(BIN)/python -m mjendo.evaluation --trials $(TRIALS) --fidelity $(FIDELITY) $(if $(OUT),--out $(OUT))
 
 # Headless recording of shipped policy E in DE.
 video: $(STAMP)

@@ -13,19 +13,17 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from mjendo import tetmesh
+from mjendo import cli, paths, tetmesh
 from mjendo.config import PAPER_N_FIXED, PAPER_N_FORCED, Endoscope, StomachShape
 from mjendo.tetmesh import MeshError, TetMesh
 from mjendo.units import from_mm, to_mm
 
-MODELS = Path(__file__).resolve().parent.parent / "models"
-STOMACH_DIR = MODELS / "stomach"
+STOMACH_DIR = paths.STOMACH_DIR
 
 
 @dataclass
@@ -197,20 +195,26 @@ def choose_sets(mesh: TetMesh, entry: np.ndarray, axis: np.ndarray,
     lumen = np.flatnonzero(inner)
     dist = np.array([np.min(np.linalg.norm(ws - p[i], axis=1)) for i in lumen])
     ok = (dist < from_mm(band_mm)) & (d_entry[lumen] > from_mm(35.0))
-    cand = lumen[ok]
-    # Order around the insertion axis, then alternate A, A, B.
-    u = np.cross(axis, [0.0, 1.0, 0.0])
-    u /= np.linalg.norm(u)
-    v = np.cross(axis, u)
-    rel = p[cand] - entry
-    ang = np.arctan2(rel @ v, rel @ u)
-    depth = rel @ axis
-    order = cand[np.lexsort((depth, np.round(ang, 3)))]
-    targets_a = [int(i) for n, i in enumerate(order) if n % 3 != 2]
-    targets_b = [int(i) for n, i in enumerate(order) if n % 3 == 2]
+    targets_a, targets_b = split_targets(p, entry, axis, lumen[ok])
     free = {int(i) for i, d in zip(lumen, dist, strict=False) if d < from_mm(3.0)}
     return {"fixed": fixed, "forced": forced, "targets_a": targets_a,
             "targets_b": targets_b, "free_reachable": sorted(free & set(targets_a + targets_b))}
+
+
+def split_targets(points: np.ndarray, entry: np.ndarray, axis: np.ndarray,
+                  candidates) -> tuple[list[int], list[int]]:
+    """Lists A (training, 2/3) and B (held out, 1/3): ordered around the insertion axis, then A, A, B.
+
+    Interleaving keeps both lists over the same regions of the wall.
+    """
+    cand = np.asarray(candidates, dtype=np.int64)
+    u = np.cross(axis, [0.0, 1.0, 0.0])
+    u /= np.linalg.norm(u)
+    v = np.cross(axis, u)
+    rel = points[cand] - entry
+    order = cand[np.lexsort((rel @ axis, np.round(np.arctan2(rel @ v, rel @ u), 3)))]
+    return ([int(i) for n, i in enumerate(order) if n % 3 != 2],
+            [int(i) for n, i in enumerate(order) if n % 3 == 2])
 
 
 # --------------------------------------------------------------------------
@@ -327,27 +331,22 @@ def main(argv: list[str] | None = None) -> int:
     r = sub.add_parser("report", help="print sizes and mesh quality")
     r.add_argument("--dir", type=Path, default=STOMACH_DIR)
     args = ap.parse_args(argv)
-    try:
+    if args.surface and (args.entry is None or args.axis is None):
+        ap.error("--surface needs --entry and --axis (the cardia and insertion direction)")
+
+    def command() -> None:
         if args.cmd == "build":
-            if args.surface:
-                if args.entry is None or args.axis is None:
-                    ap.error("--surface needs --entry and --axis (the cardia and insertion direction)")
-                st = from_surface(args.surface, args.entry, args.axis, args.thickness)
-            else:
-                st = build()
+            st = from_surface(args.surface, args.entry, args.axis, args.thickness) if args.surface else build()
             save(st, args.out)
             print(f"wrote {args.out}/stomach.msh and stomach.json (then run `python -m mjendo.targets` "
                   "to keep the targets reached in simulation)")
         else:
             st = load(args.dir)
         shown = {k: v for k, v in st.info.items() if not isinstance(v, list)}
-        print(json.dumps(shown | {"fixed": st.fixed, "forced": st.forced,
-                                  "targets_a": len(st.targets_a),
+        print(json.dumps(shown | {"fixed": st.fixed, "forced": st.forced, "targets_a": len(st.targets_a),
                                   "targets_b": len(st.targets_b)}, indent=1))
-    except MeshError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    return 0
+
+    return cli.run(command, MeshError)
 
 
 if __name__ == "__main__":

@@ -99,19 +99,20 @@ def training_figure(vec_env: str, steps: int, n_envs: int | None = None) -> dict
     import torch
     from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecNormalize
 
+    from mjendo.paths import TRAINING_CONFIG
     from mjendo.train import build_ppo, load_config, make_env
 
     torch.set_num_threads(1)
-    cfg = load_config("E", n_envs=n_envs)
+    cfg = load_config("E", TRAINING_CONFIG, n_envs=n_envs)
     vec = SubprocVecEnv if vec_env == "subproc" else DummyVecEnv
-    venv = VecNormalize(vec([make_env(cfg, i) for i in range(cfg["n_envs"])]), gamma=cfg["ppo"]["gamma"])
+    venv = VecNormalize(vec([make_env(cfg, i) for i in range(cfg.n_envs)]), gamma=cfg.ppo.gamma)
     model = build_ppo(cfg, venv)
     model.learn(2048)  # warm-up: process start, first rollout
     t0 = time.perf_counter()
     model.learn(steps, reset_num_timesteps=False)
     rate = steps / (time.perf_counter() - t0)
     venv.close()
-    return {"figure": "training", "vec_env": vec_env, "steps_per_s": rate, "n_envs": cfg["n_envs"]}
+    return {"figure": "training", "vec_env": vec_env, "steps_per_s": rate, "n_envs": cfg.n_envs}
 
 
 def video_figure(steps: int) -> dict:

@@ -8,7 +8,10 @@ model builders convert them once through :mod:`mjendo.units`.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+import math
+from dataclasses import dataclass, field, fields, replace
+
+import numpy as np
 
 # --------------------------------------------------------------------------
 # Paper facts used as checks (not as free parameters).
@@ -182,8 +185,12 @@ class PeriodicLoad:
 
 
 @dataclass(frozen=True)
-class EnvSpec:
-    """One of the paper's five environments."""
+class Condition:
+    """One of the paper's five task conditions ("environments" FE, SE, DE, UE1, UE2).
+
+    Conditions share their scene: SE, DE, UE1 and UE2 differ only in the
+    periodic load's amplitude, which the Simulator sets when it starts.
+    """
 
     name: str
     has_stomach: bool
@@ -191,20 +198,20 @@ class EnvSpec:
     target_list: str  # "A" (training) or "B" (held out)
 
 
-ENVIRONMENTS: dict[str, EnvSpec] = {
-    "FE": EnvSpec("FE", False, 0.0, "A"),
-    "SE": EnvSpec("SE", True, 0.0, "A"),
-    "DE": EnvSpec("DE", True, 1.0, "A"),
-    "UE1": EnvSpec("UE1", True, 2.0, "B"),
-    "UE2": EnvSpec("UE2", True, 3.0, "B"),
+CONDITIONS: dict[str, Condition] = {
+    "FE": Condition("FE", False, 0.0, "A"),  # paper: free environment, targets float where the wall would be
+    "SE": Condition("SE", True, 0.0, "A"),  # paper: static stomach
+    "DE": Condition("DE", True, 1.0, "A"),  # paper: dynamic, f0
+    "UE1": Condition("UE1", True, 2.0, "B"),  # paper: unstructured, 2 x f0, unseen targets
+    "UE2": Condition("UE2", True, 3.0, "B"),  # paper: unstructured, 3 x f0, unseen targets
 }
 
 
 @dataclass(frozen=True)
 class SceneConfig:
-    """Everything one scene is built from."""
+    """Everything one scene file is built from: with or without the stomach, at one fidelity."""
 
-    env: EnvSpec
+    has_stomach: bool
     fidelity: Fidelity
     material: Material = field(default_factory=Material)
     contact: Contact = field(default_factory=Contact)
@@ -227,16 +234,25 @@ def _pick(table: dict, key: str, what: str):
     return table[key]
 
 
+def condition(env: str) -> Condition:
+    """The task condition of an environment name, or a ConfigError listing the valid ones."""
+    return _pick(CONDITIONS, env, "environment")
+
+
+def fidelity_preset(fidelity: str | Fidelity) -> Fidelity:
+    return fidelity if isinstance(fidelity, Fidelity) else _pick(FIDELITIES, fidelity, "fidelity")
+
+
 def scene_config(env: str = "DE", fidelity: str | Fidelity = "fast", **overrides) -> SceneConfig:
-    """The scene config for an environment name and a fidelity preset (name, or a Fidelity to try one)."""
-    fid = fidelity if isinstance(fidelity, Fidelity) else _pick(FIDELITIES, fidelity, "fidelity")
-    cfg = SceneConfig(env=_pick(ENVIRONMENTS, env, "environment"), fidelity=fid)
+    """The scene an environment runs in at a fidelity preset (name, or a Fidelity to try one)."""
+    cfg = SceneConfig(has_stomach=condition(env).has_stomach, fidelity=fidelity_preset(fidelity))
     return replace(cfg, **overrides) if overrides else cfg
 
 
 # --------------------------------------------------------------------------
 # The learning problem (paper's MDP).
 PAPER_ACTION_LIMIT = 0.4  # paper: actions in [-0.4, 0.4]
+ACTION_SIZE = 5  # paper: four cable commands and one axial (insertion) command
 PAPER_SUCCESS_MM = 3.0  # paper: success when the tip is within 3 mm
 PAPER_BONUS = 1e4  # paper: R_S = +1e4 on success, R_B = -1e4 on leaving
 PAPER_EXIT_X_MM = 15.0  # paper: x_EE < 15 mm in its frame means the tip left
@@ -268,14 +284,34 @@ class TaskConfig:
     randomize_phase: bool = True  # start each episode at a random phase of the load
 
 
+def _finite(name: str, value, low: float, *, strict: bool) -> None:
+    ok = isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value) \
+        and (value > low if strict else value >= low)
+    if not ok:
+        raise ConfigError(f"{name} must be a finite number {'>' if strict else '>='} {low:g}, not {value!r}")
+
+
 def task_config(**kw) -> TaskConfig:
-    """A TaskConfig with its names checked."""
+    """A TaskConfig with every field checked: names, types and ranges, each error naming the fix."""
+    known = {f.name for f in fields(TaskConfig)}
+    unknown = sorted(set(kw) - known)
+    if unknown:
+        raise ConfigError(f"unknown task argument(s) {', '.join(unknown)}; valid: {', '.join(sorted(known))}")
     cfg = TaskConfig(**kw)
-    scene_config(cfg.env, cfg.fidelity)
+    condition(cfg.env)
+    fidelity_preset(cfg.fidelity)
+    for name in ("force_obs", "randomize_phase"):
+        if not isinstance(getattr(cfg, name), bool | np.bool_):
+            raise ConfigError(f"{name} must be True or False, not {getattr(cfg, name)!r}")
     if cfg.target_list not in (None, "A", "B"):
         raise ConfigError(f"unknown target_list {cfg.target_list!r}; valid: 'A', 'B' or None")
-    if cfg.max_steps < 1:
-        raise ConfigError("max_steps must be >= 1")
+    if isinstance(cfg.max_steps, bool) or not isinstance(cfg.max_steps, int | np.integer) or cfg.max_steps < 1:
+        raise ConfigError(f"max_steps must be a whole number >= 1, not {cfg.max_steps!r}")
+    for name in ("control_period_s", "cable_mm_per_unit", "insertion_mm_per_unit", "force_ref_n"):
+        _finite(name, getattr(cfg, name), 0.0, strict=True)
+    _finite("force_penalty", cfg.force_penalty, 0.0, strict=False)
+    cfg = replace(cfg, force_obs=bool(cfg.force_obs), randomize_phase=bool(cfg.randomize_phase),
+                  max_steps=int(cfg.max_steps))
     substeps(cfg)
     return cfg
 

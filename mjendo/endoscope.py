@@ -21,6 +21,7 @@ CABLES = ("cable_px", "cable_nx", "cable_py", "cable_ny")  # +x, -x, +y, -y side
 INSERTION = "insertion"
 TIP_SITE = "ee"
 TIP_BODY = "tip"
+TIP_LIGHT = "tip_light"
 TIP_CAMERA = "tip_camera"
 LINK_PREFIX = "link"
 
@@ -104,6 +105,11 @@ def add_endoscope(spec: mujoco.MjSpec, cfg: Endoscope, entry: np.ndarray, axis: 
             body.add_site(name=TIP_SITE, pos=[0, 0, length], size=[1e-3, 0, 0], rgba=[1, 0.6, 0, 1])
             # Eye-in-hand camera looking along the tip axis (MuJoCo cameras look along -z).
             body.add_camera(name=TIP_CAMERA, pos=[0, 0, length], quat=[0, 1, 0, 0], fovy=100)
+            # The endoscope's own light at its tip, as on a real scope (visual only): without it the
+            # tip camera looks into a dark, back-lit lumen.
+            body.add_light(name=TIP_LIGHT, pos=[0, 0, length], dir=[0, 0, 1], cutoff=70, exponent=2,
+                           diffuse=[0.9, 0.85, 0.8], specular=[0.1, 0.1, 0.1], castshadow=False,
+                           attenuation=[1, 0, 0])
         parent = body
         pos = np.array([0, 0, length])
 

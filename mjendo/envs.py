@@ -6,9 +6,9 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 
-from mjendo.config import ENVIRONMENTS, PAPER_ACTION_LIMIT, ConfigError, task_config
+from mjendo.config import ACTION_SIZE, PAPER_ACTION_LIMIT, ConfigError, task_config
 from mjendo.endoscope import TIP_CAMERA
-from mjendo.task import ACTION_SIZE, NavigationTask, obs_size
+from mjendo.task import NavigationTask
 
 CAMERAS = ("external", TIP_CAMERA)
 
@@ -28,7 +28,8 @@ class EndoscopeEnv(gym.Env):
 
     ## Observation space
 
-    ``Box(-inf, inf, (11,) or (15,), float32)``; world frame.
+    ``Box(low, high, (11,) or (15,), float32)``; world frame. The bounds are physical
+    (1 m, 5 m/s, 100 N) and observations are clipped to them.
 
     | index | observation | unit |
     |---|---|---|
@@ -64,25 +65,30 @@ class EndoscopeEnv(gym.Env):
     | ``force_penalty`` | 0.0 | weight of the optional force penalty per newton |
     | ``render_mode`` | None | "rgb_array" |
     | ``camera`` | "external" | "external", "tip_camera" or "both" (side by side) |
-    | ``width``, ``height`` | 480, 360 | frame size in pixels |
+    | ``width``, ``height`` | 480, 360 | frame size in pixels (16-4096) |
+    | ``**task`` | | any other TaskConfig field: ``cable_mm_per_unit``, ``insertion_mm_per_unit``, ``control_period_s``, ``force_ref_n`` |
 
     ``info`` each step: distance_mm, is_success, contact, force_N (3-vector),
     peak_force_N, target_index, exited, step and the reward terms.
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 40}
+    MAX_FRAME_PIXELS = 4096  # MuJoCo's offscreen buffer is enlarged to the frame; beyond this GPUs refuse
 
     def __init__(self, env: str = "DE", force_obs: bool = True, fidelity: str = "fast",
                  target_list: str | None = None, max_steps: int = 128, force_penalty: float = 0.0,
                  render_mode: str | None = None, camera: str = "external", width: int = 480,
-                 height: int = 360, randomize_phase: bool = True):
+                 height: int = 360, randomize_phase: bool = True, **task):
         if render_mode not in (None, "rgb_array"):
             raise ConfigError(f"unknown render_mode {render_mode!r}; valid: None, 'rgb_array'")
         if camera not in (*CAMERAS, "both"):
             raise ConfigError(f"unknown camera {camera!r}; valid: {', '.join((*CAMERAS, 'both'))}")
-        cfg = task_config(env=env, fidelity=fidelity, force_obs=bool(force_obs), target_list=target_list,
-                          max_steps=int(max_steps), force_penalty=float(force_penalty),
-                          randomize_phase=bool(randomize_phase))
+        for name, v in (("width", width), ("height", height)):
+            if isinstance(v, bool) or not isinstance(v, int | np.integer) or not 16 <= v <= self.MAX_FRAME_PIXELS:
+                raise ConfigError(f"{name} must be a whole number of pixels in [16, {self.MAX_FRAME_PIXELS}], "
+                                  f"not {v!r}")
+        cfg = task_config(env=env, fidelity=fidelity, force_obs=force_obs, target_list=target_list,
+                          max_steps=max_steps, force_penalty=force_penalty, randomize_phase=randomize_phase, **task)
         self.task = NavigationTask(cfg)
         self.render_mode = render_mode
         self.camera = camera
@@ -90,7 +96,7 @@ class EndoscopeEnv(gym.Env):
         self._renderer = None
         self.metadata = {**self.metadata, "render_fps": int(round(1.0 / self.task.control_dt))}
         self.action_space = gym.spaces.Box(-PAPER_ACTION_LIMIT, PAPER_ACTION_LIMIT, (ACTION_SIZE,), np.float32)
-        self.observation_space = gym.spaces.Box(-np.inf, np.inf, (obs_size(cfg.force_obs),), np.float32)
+        self.observation_space = gym.spaces.Box(self.task.obs_low, self.task.obs_high, dtype=np.float32)
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
@@ -122,10 +128,9 @@ class EndoscopeEnv(gym.Env):
             self._renderer.close()
             self._renderer = None
 
+    def __getstate__(self):
+        # The renderer holds OpenGL pointers that cannot be copied or pickled; render() makes a new one.
+        state = self.__dict__.copy()
+        state["_renderer"] = None
+        return state
 
-def register_all() -> None:
-    """Register one Gymnasium id per environment, plus the paper's ``endogym-v0`` (DE)."""
-    for name in ENVIRONMENTS:
-        gym.register(id=f"mjendo/{name}-v0", entry_point="mjendo.envs:EndoscopeEnv",
-                     kwargs={"env": name}, max_episode_steps=None)
-    gym.register(id="endogym-v0", entry_point="mjendo.envs:EndoscopeEnv", kwargs={"env": "DE"})

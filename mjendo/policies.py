@@ -1,82 +1,68 @@
-"""Controllers that act in the task: shipped/trained PPO policies, the DLS baseline, random.
+"""Controllers that act in the task: trained PPO policies, the DLS baseline, random.
 
 Every controller has ``reset(task)`` and ``act(obs, task) -> action`` so the
-evaluation and the viewer treat them alike.
+evaluation, the viewer and training's periodic evaluation treat them alike
+(:mod:`mjendo.rollout` runs them). Policy folders are read by
+:mod:`mjendo.artifacts`.
 """
 
 from __future__ import annotations
 
-import json
-import os
-import pickle
 from pathlib import Path
 
 import numpy as np
 
-from mjendo.anatomy import MODELS
-from mjendo.config import ConfigError
-from mjendo.task import NavigationTask, action_scales, obs_size
+from mjendo import artifacts
+from mjendo.artifacts import PolicyError
+from mjendo.config import ACTION_SIZE, PAPER_ACTION_LIMIT, ConfigError
+from mjendo.task import ACTION_SCALE_FIELDS, NavigationTask, obs_size
 
-# Shipped policies; MJENDO_POLICIES points evaluation and viewer at another set.
-POLICIES_DIR = Path(os.environ.get("MJENDO_POLICIES", MODELS / "policies"))
-POLICY_NAMES = ("A", "B", "C", "D", "E")
-MODEL_FILE = "model.zip"
-NORM_FILE = "vecnormalize.pkl"
-META_FILE = "meta.json"
-
-
-class PolicyError(ValueError):
-    """A policy cannot be loaded or does not fit the task; the message says what to do."""
+__all__ = ["PPOController", "PolicyError", "RandomController", "force_obs_of", "load_controller"]
 
 
 class PPOController:
     """A trained stable-baselines3 PPO policy with its observation normalisation."""
 
-    def __init__(self, directory: Path):
-        from stable_baselines3 import PPO
+    def __init__(self, policy: artifacts.Policy):
+        self.policy = policy
+        self.model = policy.model
+        self.meta = policy.meta
+        self.name = policy.name
+        self.n_obs = policy.n_obs
 
-        directory = Path(directory)
-        path = directory / MODEL_FILE
-        if not path.exists():
-            raise PolicyError(f"no policy file at {path}: train it with `make train POLICY=...` or pass "
-                              "a directory holding model.zip")
-        try:
-            self.model = PPO.load(str(path), device="cpu")
-        except Exception as exc:  # zip/pickle/torch errors
-            raise PolicyError(f"cannot load {path}: {exc}; the file is corrupt or not an SB3 PPO model") from exc
-        self.obs_rms, self.clip_obs = None, 10.0
-        norm = directory / NORM_FILE
-        if norm.exists():
-            try:
-                with open(norm, "rb") as f:
-                    vn = pickle.load(f)
-            except Exception as exc:
-                raise PolicyError(f"cannot read {norm}: {exc}") from exc
-            self.obs_rms, self.clip_obs = vn.obs_rms, vn.clip_obs
-        meta = directory / META_FILE
-        self.meta = json.loads(meta.read_text()) if meta.exists() else {}
-        self.name = self.meta.get("policy", directory.name)
-        self.n_obs = int(self.model.observation_space.shape[0])
+    @classmethod
+    def from_folder(cls, directory: Path) -> PPOController:
+        return cls(artifacts.load(directory))
+
+    @classmethod
+    def from_training(cls, model, venv, meta: dict) -> PPOController:
+        """The policy being trained, with the training env's current normalisation (periodic evaluation)."""
+        rms = getattr(venv, "obs_rms", None)
+        return cls(artifacts.Policy(Path("."), model, rms, float(getattr(venv, "clip_obs", 10.0)),
+                                    float(getattr(venv, "epsilon", 1e-8)), meta))
 
     def check(self, task: NavigationTask) -> None:
+        """Refuse a task whose observation or action meaning differs from the one the policy trained in."""
         if self.n_obs != obs_size(task.cfg.force_obs):
             raise PolicyError(f"policy {self.name} expects {self.n_obs} observations but the task gives "
                               f"{obs_size(task.cfg.force_obs)}: use force_obs={self.n_obs == obs_size(True)}")
-        trained = self.meta.get("action_scales")
-        now = action_scales(task.cfg)
-        if trained is not None and trained != now:
-            diff = ", ".join(f"{k} {trained.get(k)} (task: {v})" for k, v in now.items() if trained.get(k) != v)
-            raise PolicyError(f"policy {self.name} was trained with other action scales: {diff}; retrain it with "
-                              "`make train` or build the task with the policy's values")
+        trained = artifacts.trained_task(self.meta)
+        diff = [f"{k} {trained[k]} (task: {getattr(task.cfg, k)})" for k in ACTION_SCALE_FIELDS
+                if k in trained and float(trained[k]) != float(getattr(task.cfg, k))]
+        if diff:
+            raise PolicyError(f"policy {self.name} was trained with other action scales: {', '.join(diff)}; "
+                              "retrain it with `make train` or build the task with the policy's values")
 
     def reset(self, task: NavigationTask) -> None:
         self.check(task)
 
     def normalize(self, obs: np.ndarray) -> np.ndarray:
-        if self.obs_rms is None:
+        """What SB3's VecNormalize.normalize_obs does with the same statistics (tested against it)."""
+        p = self.policy
+        if p.obs_rms is None:
             return obs
-        o = (obs - self.obs_rms.mean) / np.sqrt(self.obs_rms.var + 1e-8)
-        return np.clip(o, -self.clip_obs, self.clip_obs).astype(np.float32)
+        o = (obs - p.obs_rms.mean) / np.sqrt(p.obs_rms.var + p.epsilon)
+        return np.clip(o, -p.clip_obs, p.clip_obs).astype(np.float32)
 
     def act(self, obs, task: NavigationTask) -> np.ndarray:
         action, _ = self.model.predict(self.normalize(np.asarray(obs, np.float32)), deterministic=True)
@@ -93,26 +79,22 @@ class RandomController:
         pass
 
     def act(self, obs, task: NavigationTask) -> np.ndarray:
-        return self.rng.uniform(-0.4, 0.4, 5)
+        return self.rng.uniform(-PAPER_ACTION_LIMIT, PAPER_ACTION_LIMIT, ACTION_SIZE)
+
+
+NON_LEARNED = ("baseline", "random")
 
 
 def force_obs_of(spec: str) -> bool:
-    """Whether the controller named by ``spec`` needs the force-aware observation."""
-    if spec in POLICY_NAMES:
-        from mjendo.train import load_config  # the training config says what each policy observes
-
-        return bool(load_config(spec)["force_obs"])
-    p = Path(spec)
-    if p.is_dir() or p.suffix == ".zip":
-        return PPOController(p.parent if p.suffix == ".zip" else p).n_obs == obs_size(True)
-    return True  # baseline, random: they ignore the observation's force part
+    """Whether the controller named by ``spec`` needs the force-aware observation (from its own folder)."""
+    if spec in NON_LEARNED:
+        return True  # they ignore the observation's force part
+    return artifacts.force_obs(artifacts.resolve(spec))
 
 
 def load_controller(spec: str, task: NavigationTask | None = None):
-    """'A'..'E' (shipped), 'baseline', 'random', or a directory holding model.zip."""
-    if spec in POLICY_NAMES:
-        ctrl = PPOController(POLICIES_DIR / spec)
-    elif spec == "baseline":
+    """'A'..'E' (shipped), 'baseline', 'random', or a policy folder (or its model.zip)."""
+    if spec == "baseline":
         from mjendo.baseline import DLSController
 
         if task is None:
@@ -120,22 +102,8 @@ def load_controller(spec: str, task: NavigationTask | None = None):
         ctrl = DLSController(task)
     elif spec == "random":
         ctrl = RandomController()
-    elif Path(spec).is_dir() or Path(spec).suffix == ".zip":
-        p = Path(spec)
-        ctrl = PPOController(p.parent if p.suffix == ".zip" else p)
     else:
-        raise ConfigError(f"unknown policy {spec!r}; valid: {', '.join(POLICY_NAMES)}, baseline, random, "
-                          "or a directory with model.zip")
+        ctrl = PPOController.from_folder(artifacts.resolve(spec))
     if task is not None and hasattr(ctrl, "check"):
         ctrl.check(task)
     return ctrl
-
-
-def rollout(env, ctrl, seed: int = 0, target: int | None = None) -> dict:
-    """Run one episode of ``ctrl`` in a Gymnasium ``EndoscopeEnv``; returns the last step's info."""
-    obs, info = env.reset(seed=seed, options={"target_index": target} if target is not None else None)
-    ctrl.reset(env.task)
-    while True:
-        obs, _, term, trunc, info = env.step(ctrl.act(obs, env.task))
-        if term or trunc:
-            return info

@@ -1,8 +1,11 @@
-"""Assemble the five environments' MuJoCo scenes and write them under models/scenes/.
+"""Assemble the MuJoCo scenes and write them under models/scenes/: one per fidelity, plus FE.
 
-``python -m mjendo.scene`` regenerates every committed scene file from the
-committed stomach mesh (``models/stomach``) and the config; ``scene_xml``
-returns one as text. The scene files are what the simulator loads.
+The stomach conditions SE, DE, UE1 and UE2 share one scene per fidelity
+(``stomach_fast.xml``, ``stomach_full.xml``): they differ only in the
+periodic load's amplitude, which the Simulator sets from the condition.
+FE (no stomach) has its own ``FE.xml``. ``python -m mjendo.scene``
+regenerates every committed scene file from the committed stomach mesh
+and the config; ``scene_xml`` returns one as text.
 """
 
 from __future__ import annotations
@@ -13,9 +16,8 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from mjendo import anatomy, endoscope
+from mjendo import anatomy, endoscope, paths
 from mjendo.config import (
-    ENVIRONMENTS,
     FIDELITIES,
     PAPER_SUCCESS_MM,
     ConfigError,
@@ -23,24 +25,27 @@ from mjendo.config import (
     SceneConfig,
     scene_config,
 )
-from mjendo.units import from_mm
+from mjendo.units import from_mm, to_mm
 
-SCENES_DIR = anatomy.MODELS / "scenes"
+SCENES_DIR = paths.SCENES_DIR
 FLEX = "stomach"
 LOAD = "periodic_load"
 TARGET_BODY = "target"
 STOMACH_GEOM_GROUP = 2
 
 
+def scene_name(cfg: SceneConfig) -> str:
+    return f"stomach_{cfg.fidelity.name}" if cfg.has_stomach else "FE"
+
+
 def scene_path(env: str, fidelity: str = "fast") -> Path:
-    """Committed scene file of an environment (FE has no stomach, one file)."""
-    scene_config(env, fidelity)  # validates both names
-    return SCENES_DIR / ("FE.xml" if env == "FE" else f"{env}_{fidelity}.xml")
+    """Committed scene file an environment runs in (FE has no stomach: one file for every fidelity)."""
+    return SCENES_DIR / f"{scene_name(scene_config(env, fidelity))}.xml"
 
 
 def _header(cfg: SceneConfig) -> str:
     fid = cfg.fidelity
-    return f"""<mujoco model="mjendo {cfg.env.name} {fid.name}">
+    return f"""<mujoco model="mjendo {scene_name(cfg)}">
   <compiler angle="radian" autolimits="true"/>
   <option timestep="{fid.timestep_s}" integrator="discrete" solver="CG" iterations="{fid.iterations}"
           tolerance="{fid.tolerance:g}" gravity="0 0 {-cfg.gravity}" cone="pyramidal"/>
@@ -123,7 +128,7 @@ def probe(model: mujoco.MjModel, settle_s: float = 0.5) -> None:
                           "ill-conditioned): lower young or the timestep, or raise the fidelity's iterations")
     sag = np.abs(data.flexvert_xpos - x0).max() if len(x0) else 0.0
     if not np.isfinite(sag) or sag > MAX_SETTLE_SAG_M:
-        raise ConfigError(f"the stomach collapses under gravity (wall moved {sag * 1e3:.0f} mm while "
+        raise ConfigError(f"the stomach collapses under gravity (wall moved {float(to_mm(sag)):.0f} mm while "
                           "settling): raise young or lower the density")
 
 
@@ -135,17 +140,18 @@ def _vertex_jacobian(model: mujoco.MjModel, flex_id: int, vertices: list[int],
     finite difference is exact; it covers full and interpolated dofs alike.
     """
     data = mujoco.MjData(model)
+    h = 1e-3  # any step is exact for a linear map
     adr = model.flex_vertadr[flex_id]
     mujoco.mj_kinematics(model, data)
     mujoco.mj_flex(model, data)
     x0 = data.flexvert_xpos[adr + np.asarray(vertices)].copy()
     jac = np.zeros((len(vertices), 3, len(dofs)))
     for k, q in enumerate(dofs):
-        data.qpos[q] += 1e-3
+        data.qpos[q] += h
         mujoco.mj_kinematics(model, data)
         mujoco.mj_flex(model, data)
-        jac[:, :, k] = (data.flexvert_xpos[adr + np.asarray(vertices)] - x0) / 1e-3
-        data.qpos[q] -= 1e-3
+        jac[:, :, k] = (data.flexvert_xpos[adr + np.asarray(vertices)] - x0) / h
+        data.qpos[q] -= h
     return jac
 
 
@@ -155,9 +161,7 @@ def build_spec(cfg: SceneConfig, stomach: anatomy.Stomach | None = None,
     validate(cfg)
     st = stomach or anatomy.load(stomach_dir)
     spec = mujoco.MjSpec.from_string(_header(cfg))
-    spec.add_numeric(name="load_f0", data=[cfg.load.f0_n * cfg.env.load_multiplier])
-    spec.add_numeric(name="load_half_period", data=[cfg.load.half_period_s])
-    if cfg.env.has_stomach:
+    if cfg.has_stomach:
         flex_spec = mujoco.MjSpec.from_string(_flexcomp(cfg, st, (stomach_dir / "stomach.msh").resolve()))
         flex_spec.compile()
         spec = _merge_flex(spec, flex_spec)
@@ -168,7 +172,7 @@ def build_spec(cfg: SceneConfig, stomach: anatomy.Stomach | None = None,
     endoscope.add_endoscope(spec, cfg.endoscope, st.entry, st.axis, cfg.contact.friction)
     model = spec.compile()
     endoscope.set_cable_rest_lengths(spec, model)
-    if cfg.env.has_stomach:
+    if cfg.has_stomach:
         _add_anchors_and_load(spec, model, st, cfg)
     return spec
 
@@ -238,11 +242,10 @@ def scene_xml(env: str, fidelity: str | Fidelity = "fast", check: bool = True, *
 def write_all(directory: Path = SCENES_DIR) -> list[Path]:
     directory.mkdir(parents=True, exist_ok=True)
     written = []
-    for env in ENVIRONMENTS:
-        for fid in (["fast"] if env == "FE" else FIDELITIES):
-            path = directory / scene_path(env, fid).name
-            path.write_text(scene_xml(env, fid))
-            written.append(path)
+    for env, fid in [("FE", "fast")] + [("SE", f) for f in FIDELITIES]:
+        path = directory / scene_path(env, fid).name
+        path.write_text(scene_xml(env, fid))
+        written.append(path)
     return written
 
 

@@ -1,6 +1,7 @@
 """The simulator: a loaded scene, its controls, the periodic load and contact sensing.
 
-``Simulator("DE")`` loads the committed scene file; ``step`` advances the
+``Simulator("DE")`` loads the committed scene of the condition's fidelity and
+sets the condition's load amplitude (SE 0, DE f0, UE1 2 f0, UE2 3 f0); ``step`` advances the
 physics with cable pulls and insertion in metres, drives the square-wave
 load through its actuator and checks for instability; ``contact`` reads the
 endoscope-stomach contacts with ``mujoco.mj_contactForce``.
@@ -15,7 +16,7 @@ import mujoco
 import numpy as np
 
 from mjendo import endoscope, scene
-from mjendo.config import scene_config
+from mjendo.config import PeriodicLoad, condition
 
 
 class InstabilityError(RuntimeError):
@@ -51,18 +52,20 @@ _NONE3.flags.writeable = False
 class Simulator:
     """One scene's model and data with named access to what the task needs."""
 
-    def __init__(self, env: str = "DE", fidelity: str = "fast", path: Path | None = None):
-        self.env = scene_config(env, fidelity).env
+    def __init__(self, env: str = "DE", fidelity: str = "fast", path: Path | None = None,
+                 load: PeriodicLoad | None = None):
+        self.env = condition(env)
         self.path = Path(path) if path else scene.scene_path(env, fidelity)
         if not self.path.exists():
             raise FileNotFoundError(f"scene file {self.path} is missing; regenerate the scenes "
-                                    "with `python -m mjendo.scene`")
+                                    "with `make models` (python -m mjendo.scene)")
         self.model = mujoco.MjModel.from_xml_path(str(self.path))
         self.data = mujoco.MjData(self.model)
-        m = self.model
-        self._ids(m)
-        self.f0 = float(m.numeric("load_f0").data[0])
-        self.half_period = float(m.numeric("load_half_period").data[0])
+        self._ids(self.model)
+        load = load or PeriodicLoad()
+        # Per-vertex force amplitude (N) of this condition's square wave, and its half period T (s).
+        self.f0 = load.f0_n * self.env.load_multiplier if self.load_act >= 0 else 0.0
+        self.half_period = load.half_period_s
         self.reset()
 
     def _ids(self, m: mujoco.MjModel) -> None:
@@ -147,10 +150,6 @@ class Simulator:
         if ids is None:
             return self.data.flexvert_xpos[adr:adr + self.model.flex_vertnum[self.flex]].copy()
         return self.data.flexvert_xpos[adr + np.asarray(ids)]  # fancy indexing copies
-
-    def load_force(self, t: float | None = None) -> float:
-        """Per-vertex periodic load (N) at time t (default: now)."""
-        return square_wave(self.time if t is None else t, self.f0, self.half_period)
 
     def set_target_marker(self, pos: np.ndarray, rgba=None) -> None:
         self.data.mocap_pos[self.target_mocap] = pos

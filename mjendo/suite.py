@@ -14,8 +14,8 @@ from dm_control.rl import control
 from dm_control.suite import base
 from dm_env import specs
 
-from mjendo.config import PAPER_ACTION_LIMIT, task_config
-from mjendo.task import ACTION_SIZE, FORCE_BLOCKS, OBS_BLOCKS, NavigationTask
+from mjendo.config import ACTION_SIZE, PAPER_ACTION_LIMIT, task_config
+from mjendo.task import NavigationTask, obs_blocks
 
 
 class Physics(dm_mujoco.Physics):
@@ -56,17 +56,13 @@ class Navigation(base.Task):
     def before_step(self, action, physics):
         self._last = self.core.step(action)
 
-    def after_step(self, physics):
-        pass
-
     def action_spec(self, physics):
         return specs.BoundedArray((ACTION_SIZE,), np.float64, -PAPER_ACTION_LIMIT, PAPER_ACTION_LIMIT, "action")
 
     def get_observation(self, physics):
         obs = self.core.observation().astype(np.float64)
-        blocks = OBS_BLOCKS + (FORCE_BLOCKS if self.core.cfg.force_obs else [])
         out, i = collections.OrderedDict(), 0
-        for name, n, _unit in blocks:
+        for name, n, _unit, _bounds in obs_blocks(self.core.cfg.force_obs):
             out[name] = obs[i:i + n].copy()
             i += n
         return out

@@ -11,11 +11,11 @@ the insertion axis so both cover the same regions.
 from __future__ import annotations
 
 import argparse
-import json
 
 import numpy as np
 
 from mjendo import anatomy
+from mjendo.units import to_mm
 
 REACH_MM = 6.0  # a candidate is kept when exploration brought the tip this close
 EPISODES = 400
@@ -44,7 +44,7 @@ def explore(episodes: int = EPISODES, seed: int = 0, fidelity: str = "fast", pro
                 a = rng.uniform(-0.4, 0.4, 5)
                 a[4] = rng.uniform(-0.1, 0.4)
             res = task.step(a)
-            d = np.linalg.norm(task.sim.vertices(cand) - task.sim.tip_pos(), axis=1) * 1e3
+            d = to_mm(np.linalg.norm(task.sim.vertices(cand) - task.sim.tip_pos(), axis=1))
             best = np.minimum(best, d)
             if res.terminated and res.info["exited"]:
                 break
@@ -52,15 +52,8 @@ def explore(episodes: int = EPISODES, seed: int = 0, fidelity: str = "fast", pro
 
 
 def split(cand: np.ndarray, best: np.ndarray, st: anatomy.Stomach) -> tuple[list[int], list[int]]:
-    keep = cand[best < REACH_MM]
-    u = np.cross(st.axis, [0.0, 1.0, 0.0])
-    u /= np.linalg.norm(u)
-    v = np.cross(st.axis, u)
-    rel = st.mesh.points[keep] - st.entry
-    order = keep[np.lexsort((rel @ st.axis, np.round(np.arctan2(rel @ v, rel @ u), 3)))]
-    a = [int(i) for n, i in enumerate(order) if n % 3 != 2]
-    b = [int(i) for n, i in enumerate(order) if n % 3 == 2]
-    return a, b
+    """Lists A and B of the candidates exploration reached (anatomy's split rule)."""
+    return anatomy.split_targets(st.mesh.points, st.entry, st.axis, cand[best < REACH_MM])
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -72,14 +65,12 @@ def main(argv: list[str] | None = None) -> int:
     st = anatomy.load()
     cand, best = explore(args.episodes, args.seed)
     a, b = split(cand, best, st)
-    path = anatomy.STOMACH_DIR / "stomach.json"
-    meta = json.loads(path.read_text())
-    meta["info"]["candidates"] = cand.tolist()
-    meta["info"]["candidate_reach_mm"] = [round(float(x), 2) for x in best]
-    meta["info"]["target_rule"] = (f"candidates approached within {REACH_MM} mm by {args.episodes} seeded random "
-                                   f"exploration episodes in SE (seed {args.seed}): python -m mjendo.targets")
-    meta["targets_a"], meta["targets_b"] = a, b
-    path.write_text(json.dumps(meta, indent=1) + "\n")
+    st.info["candidates"] = cand.tolist()
+    st.info["candidate_reach_mm"] = [round(float(x), 2) for x in best]
+    st.info["target_rule"] = (f"candidates approached within {REACH_MM} mm by {args.episodes} seeded random "
+                              f"exploration episodes in SE (seed {args.seed}): python -m mjendo.targets")
+    st.targets_a, st.targets_b = a, b
+    anatomy.save(st)
     print(f"{len(cand)} candidates, {len(a) + len(b)} reachable: list A {len(a)}, list B {len(b)}")
     return 0
 

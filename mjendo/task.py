@@ -16,7 +16,8 @@ import numpy as np
 
 from mjendo import anatomy
 from mjendo.config import (
-    ENVIRONMENTS,
+    ACTION_SIZE,
+    CONDITIONS,
     PAPER_ACTION_LIMIT,
     PAPER_BONUS,
     PAPER_EXIT_X_MM,
@@ -28,11 +29,14 @@ from mjendo.config import (
 from mjendo.sim import InstabilityError, Simulator
 from mjendo.units import from_mm, to_mm
 
-ACTION_SIZE = 5
-# (name, size, unit) of each observation block, in order.
-OBS_BLOCKS = [("ee_to_target", 3, "mm"), ("ee_velocity", 3, "mm/s"), ("cable_lengths", 4, "mm"),
-              ("previous_axial_action", 1, "action units")]
-FORCE_BLOCKS = [("contact", 1, "0/1"), ("force", 3, "N / force_ref_n")]
+# (name, size, unit, bound) of each observation block, in order. The bounds are physical: the
+# scene is well inside 1 m, a tip faster than 5 m/s or a force over 100 N is a numerical event,
+# and observations are clipped to them (the observation space says so).
+OBS_BLOCKS = [("ee_to_target", 3, "mm", (-1000.0, 1000.0)), ("ee_velocity", 3, "mm/s", (-5000.0, 5000.0)),
+              ("cable_lengths", 4, "mm", (0.0, 500.0)),
+              ("previous_axial_action", 1, "action units", (-PAPER_ACTION_LIMIT, PAPER_ACTION_LIMIT))]
+FORCE_BOUND_N = 100.0
+FORCE_BLOCKS = [("contact", 1, "0/1", (0.0, 1.0)), ("force", 3, "N / force_ref_n", (-FORCE_BOUND_N, FORCE_BOUND_N))]
 SETTLE_S = 1.0  # the stomach settles under gravity (and load) before episodes start
 # Start states are snapshots of the stomach in its periodic steady state, this
 # many per load cycle (every 50 ms of a 4 s cycle): an episode starts at its
@@ -47,12 +51,22 @@ TARGET_YELLOW = (1.0, 0.85, 0.0, 1.0)
 ACTION_SCALE_FIELDS = ("control_period_s", "cable_mm_per_unit", "insertion_mm_per_unit")
 
 
-def action_scales(cfg: TaskConfig) -> dict[str, float]:
-    return {k: float(getattr(cfg, k)) for k in ACTION_SCALE_FIELDS}
+def obs_blocks(force_obs: bool) -> list[tuple]:
+    return OBS_BLOCKS + (FORCE_BLOCKS if force_obs else [])
 
 
 def obs_size(force_obs: bool) -> int:
-    return sum(n for _, n, _ in OBS_BLOCKS + (FORCE_BLOCKS if force_obs else []))
+    return sum(b[1] for b in obs_blocks(force_obs))
+
+
+def obs_bounds(cfg: TaskConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Lower and upper bound of every observation entry (the force block in units of force_ref_n)."""
+    lo, hi = [], []
+    for name, n, _unit, (a, b) in obs_blocks(cfg.force_obs):
+        scale = 1.0 / cfg.force_ref_n if name == "force" else 1.0
+        lo += [a * scale] * n
+        hi += [b * scale] * n
+    return np.array(lo, np.float32), np.array(hi, np.float32)
 
 
 @lru_cache(maxsize=4)
@@ -81,13 +95,14 @@ class NavigationTask:
         c = self.cfg
         self.sim = Simulator(c.env, c.fidelity)
         self.stomach = anatomy.load()
-        listname = c.target_list or ENVIRONMENTS[c.env].target_list
+        listname = c.target_list or CONDITIONS[c.env].target_list
         self.target_list = listname
         self.targets = np.array(self.stomach.targets_a if listname == "A" else self.stomach.targets_b)
         self.cable_step = from_mm(c.cable_mm_per_unit)
         self.insertion_step = from_mm(c.insertion_mm_per_unit)
         self.substeps = substeps(c)
         self.obs_size = obs_size(c.force_obs)
+        self.obs_low, self.obs_high = obs_bounds(c)
         self.control_dt = self.substeps * self.sim.model.opt.timestep
         # Paper's frame: x along the insertion axis, origin 15 mm outside the
         # cardia, so "x_EE < 15 mm" means the tip is back behind the cardia.
@@ -254,4 +269,4 @@ class NavigationTask:
         if self.cfg.force_obs:
             obs[11] = 1.0 if self.contact.active else 0.0
             obs[12:15] = self.contact.force / self.cfg.force_ref_n
-        return obs
+        return np.clip(obs, self.obs_low, self.obs_high, out=obs)

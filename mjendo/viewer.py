@@ -14,20 +14,21 @@ withdraw, R reset, P toggle the policy.
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
 import mujoco
 import numpy as np
 
 import mjendo  # noqa: F401  (chooses the GL backend first)
+from mjendo import cli, rollout
 from mjendo.config import ConfigError
+from mjendo.endoscope import TIP_CAMERA
 from mjendo.envs import EndoscopeEnv
 from mjendo.gl import NO_GL_HELP, NoOpenGLError
 from mjendo.policies import PolicyError, force_obs_of, load_controller
 from mjendo.task import NavigationTask
 
-CAMERA_NAMES = {"external": "external", "tip": "tip_camera"}
+CAMERA_NAMES = {"external": "external", "tip": TIP_CAMERA}
 STOMACH_ALPHA = 0.3
 RESULTANT_RGBA = np.array([1.0, 0.2, 0.1, 1.0], np.float32)
 ARROW_M_PER_N = 0.02  # 1 N of resultant force draws a 20 mm arrow
@@ -77,24 +78,42 @@ def project(point: np.ndarray, model: mujoco.MjModel, data: mujoco.MjData, camer
     return width / 2 + f * p[0] / -p[2], height / 2 - f * p[1] / -p[2]
 
 
-def caption(frame: np.ndarray, lines: list[str]) -> np.ndarray:
-    """Text box in the bottom-left corner (the scope enters from the top)."""
+def _font(size: int):
+    from PIL import ImageFont
+
+    try:
+        return ImageFont.load_default(size=size)  # scalable with FreeType
+    except (TypeError, OSError):
+        return ImageFont.load_default()
+
+
+def caption(frame: np.ndarray, lines: list[str], corner: str = "bottom-left") -> np.ndarray:
+    """Text box scaled to the frame (about 1/28 of its height per line), bottom-left or top-left."""
     from PIL import Image, ImageDraw
 
+    lines = [ln for ln in lines if ln]
+    if not lines:
+        return frame
     img = Image.fromarray(frame)
     draw = ImageDraw.Draw(img)
-    lines = [ln for ln in lines if ln]
-    h = 12
-    width = 6 + 6 * max(len(ln) for ln in lines)
-    top = frame.shape[0] - 4 - h * len(lines)
-    draw.rectangle([0, top - 2, width, frame.shape[0]], fill=(0, 0, 0))
+    size = max(10, frame.shape[0] // 28)
+    font = _font(size)
+    pad, h = size // 3, int(size * 1.25)
+    width = 2 * pad + max(int(draw.textlength(ln, font=font)) for ln in lines)
+    top = frame.shape[0] - pad - h * len(lines) if corner == "bottom-left" else pad
+    draw.rectangle([0, top - pad, width, top + h * len(lines) + pad // 2], fill=(0, 0, 0))
     for i, line in enumerate(lines):
-        draw.text((4, top + h * i), line, fill=(255, 255, 80) if line == "SUCCESS" else (255, 255, 255))
+        colour = (255, 220, 0) if line.startswith("SUCCESS") else (255, 255, 255)
+        draw.text((pad, top + h * i), line, fill=colour, font=font)
     return np.asarray(img)
 
 
+PANE_TITLES = {"external": "external view", TIP_CAMERA: "tip camera (light at the tip)"}
+TIP_VIEW_MARKER_M = 0.001  # in the tip camera the 3 mm target sphere fills the view: a 1 mm dot instead
+
+
 class Recorder:
-    """Renders an env's frames (one or two cameras) with overlays."""
+    """Renders an env's frames (one or two cameras) with overlays and captions."""
 
     def __init__(self, env: EndoscopeEnv, camera: str, width: int, height: int):
         if camera not in (*CAMERA_NAMES, "both"):
@@ -112,22 +131,46 @@ class Recorder:
                      mujoco.mjtRndFlag.mjRND_SKYBOX):
             flags[flag] = False  # software rendering: these cost most and show least
 
-    def frame(self, info: dict) -> np.ndarray:
+    def _view(self, cam: str) -> np.ndarray:
         task = self.env.task
-        views = []
-        for cam in self.cams:
+        m = task.sim.model
+        site = task.sim.target_site
+        size = m.site_size[site, 0]
+        if cam == TIP_CAMERA:
+            m.site_size[site, 0] = TIP_VIEW_MARKER_M
+        try:
             self.renderer.update_scene(task.sim.data, camera=cam, scene_option=self.option)
-            add_resultant_arrow(self.renderer.scene, task)
-            views.append(self.renderer.render())
+        finally:
+            m.site_size[site, 0] = size
+        add_resultant_arrow(self.renderer.scene, task)
+        view = self.renderer.render()
+        return caption(view, [PANE_TITLES[cam]], corner="top-left") if len(self.cams) > 1 else view
+
+    def frame(self, info: dict, episode_time: float) -> np.ndarray:
+        task = self.env.task
         f = float(np.linalg.norm(info.get("force_N", np.zeros(3))))
-        lines = [f"{task.cfg.env}  step {info.get('step', 0):3d}  t {task.sim.time:5.2f} s",
+        lines = [f"{task.cfg.env}  step {info.get('step', 0):3d}  t {episode_time:5.2f} s",
                  f"distance {info.get('distance_mm', task.distance_mm()):5.1f} mm",
                  f"force {f:5.2f} N" + (" contact" if info.get("contact") else ""),
-                 "SUCCESS" if info.get("is_success") else ""]
-        return caption(np.concatenate(views, axis=1), lines)
+                 "SUCCESS: within 3 mm" if info.get("is_success") else ""]
+        return caption(np.concatenate([self._view(c) for c in self.cams], axis=1), lines)
 
     def close(self) -> None:
         self.renderer.close()
+
+
+SUCCESS_HOLD_S = 1.5  # a success stays on screen this long (it happens in one control step)
+END_HOLD_S = 0.5
+
+
+def check_recording(episodes: int, seed: int, width: int, height: int, fps: int, max_steps: int) -> None:
+    """Refuse arguments that would write an empty or unplayable video, naming the valid range."""
+    checks = [("episodes", episodes, 1, 10_000), ("seed", seed, 0, 2**31 - 1), ("fps", fps, 1, 240),
+              ("steps", max_steps, 1, 100_000), ("width", width, 16, EndoscopeEnv.MAX_FRAME_PIXELS),
+              ("height", height, 16, EndoscopeEnv.MAX_FRAME_PIXELS)]
+    for name, v, lo, hi in checks:
+        if isinstance(v, bool) or not isinstance(v, int | np.integer) or not lo <= v <= hi:
+            raise ConfigError(f"--{name} must be a whole number in [{lo}, {hi}], not {v!r}")
 
 
 def record(path: Path, policy: str = "E", env_name: str = "DE", episodes: int = 3, seed: int = 0,
@@ -137,6 +180,7 @@ def record(path: Path, policy: str = "E", env_name: str = "DE", episodes: int = 
     import imageio.v2 as imageio
     from tqdm import tqdm
 
+    check_recording(episodes, seed, width, height, fps, max_steps)
     path = Path(path)
     if path.suffix.lower() != ".mp4":
         raise ConfigError(f"output {path} must end in .mp4")
@@ -151,25 +195,22 @@ def record(path: Path, policy: str = "E", env_name: str = "DE", episodes: int = 
     frames, successes = 0, 0
     try:
         for ep in tqdm(range(episodes), desc=f"recording {path.name}", unit="episode"):
-            options = {"target_index": target} if target is not None else None
-            obs, info = env.reset(seed=seed + ep, options=options)
-            ctrl.reset(env.task)
-            info = {**info, "step": 0}
-            writer.append_data(rec.frame(info))
-            frames += 1
-            for _ in range(max_steps):
-                obs, _, term, trunc, info = env.step(ctrl.act(obs, env.task))
-                writer.append_data(rec.frame(info))
+            t0 = None
+            for s in rollout.episode(env, ctrl, seed=seed + ep, target=target):
+                t0 = env.task.sim.time if t0 is None else t0
+                image = rec.frame(s.info, env.task.sim.time - t0)
+                writer.append_data(image)
                 frames += 1
-                if term or trunc:
-                    break
-            successes += bool(info.get("is_success"))
-            for _ in range(fps // 2):  # hold the last frame half a second
-                writer.append_data(rec.frame(info))
+            successes += bool(s.info.get("is_success"))
+            hold = SUCCESS_HOLD_S if s.info.get("is_success") else END_HOLD_S
+            for _ in range(max(1, int(round(hold * fps)))):  # hold the last frame
+                writer.append_data(image)
                 frames += 1
     finally:
         writer.close()
         rec.close()
+    if not path.exists() or path.stat().st_size == 0:
+        raise ConfigError(f"ffmpeg wrote nothing to {path}; check the disk and the frame size")
     return {"frames": frames, "successes": successes, "episodes": episodes}
 
 
@@ -183,6 +224,14 @@ def interactive(policy: str, env_name: str, seed: int) -> None:
     """Window with keyboard driving (needs a display)."""
     import mujoco.viewer
 
+    try:
+        import glfw
+
+        if not glfw.init():
+            raise RuntimeError
+    except Exception:
+        raise NoOpenGLError("no display for an interactive window: record a video instead with "
+                            "`python -m mjendo.viewer --headless --record out.mp4`") from None
     env = EndoscopeEnv(env_name, force_obs=policy == "keyboard" or force_obs_of(policy), max_steps=10**9)
     style(env.task.sim.model)
     ctrl = load_controller(policy, env.task) if policy != "keyboard" else None
@@ -230,21 +279,21 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--fps", type=int, default=30)
     ap.add_argument("--steps", type=int, default=80, help="steps per episode (paper's trials: 80)")
     ap.add_argument("--target", type=int, help="a target vertex index from the env's list")
+    ap.add_argument("--fidelity", choices=["fast", "full"], default="fast", help="stomach to show")
     a = ap.parse_args(argv)
-    try:
-        if a.record or a.headless:
-            if not a.record:
-                ap.error("--headless needs --record out.mp4")
+    if a.headless and not a.record:
+        ap.error("--headless needs --record out.mp4")
+
+    def command() -> None:
+        if a.record:
             r = record(a.record, a.policy, a.env, a.episodes, a.seed, a.camera, a.width, a.height, a.fps,
-                       a.steps, a.target)
+                       a.steps, a.target, a.fidelity)
             print(f"wrote {a.record}: {r['frames']} frames, {r['successes']}/{r['episodes']} episodes reached "
                   "the target")
         else:
             interactive(a.policy, a.env, a.seed)
-    except (ConfigError, PolicyError, NoOpenGLError, ValueError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    return 0
+
+    return cli.run(command, ConfigError, PolicyError, NoOpenGLError, ValueError)
 
 
 if __name__ == "__main__":

@@ -9,7 +9,7 @@ import mjendo  # noqa: F401  (registers the ids)
 from mjendo.baseline import DLSController
 from mjendo.config import ConfigError
 from mjendo.envs import EndoscopeEnv
-from mjendo.policies import rollout
+from mjendo.rollout import run
 
 IDS = ["mjendo/FE-v0", "mjendo/SE-v0", "mjendo/DE-v0", "mjendo/UE1-v0", "mjendo/UE2-v0", "endogym-v0"]
 
@@ -163,7 +163,7 @@ def test_baseline_reaches_free_space_targets_in_fe():
     env = EndoscopeEnv("FE", max_steps=80)
     ctrl = DLSController(env.task)
     free = [t for t in env.task.stomach.info["free_reachable_targets"] if t in set(env.task.targets.tolist())]
-    reached = [rollout(env, ctrl, target=t)["is_success"] for t in free[:12]]
+    reached = [run(env, ctrl, target=t)[0]["is_success"] for t in free[:12]]
     assert sum(reached) >= 3, reached
 
 

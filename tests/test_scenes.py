@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 
 from mjendo import scene
-from mjendo.config import ENVIRONMENTS, FIDELITIES, ConfigError, Material, scene_config
+from mjendo.config import CONDITIONS, FIDELITIES, ConfigError, Material, scene_config
 from mjendo.sim import InstabilityError, Simulator
 
-SCENES = [("FE", "fast")] + [(e, f) for e in ENVIRONMENTS if e != "FE" for f in FIDELITIES]
+SCENES = [("FE", "fast")] + [(e, f) for e in CONDITIONS if e != "FE" for f in FIDELITIES]
 
 
 @pytest.mark.parametrize("env,fidelity", SCENES)
@@ -32,6 +32,17 @@ def test_scene_runs_one_second_of_random_control(env, fidelity):
 @pytest.mark.parametrize("env,fidelity", [("FE", "fast"), ("SE", "fast"), ("DE", "full")])
 def test_committed_scene_is_current(env, fidelity):
     assert scene.scene_path(env, fidelity).read_text() == scene.scene_xml(env, fidelity)
+
+
+def test_one_scene_per_fidelity_plus_fe():
+    # SE, DE, UE1 and UE2 share their fidelity's scene; only the load amplitude differs, set by the Simulator.
+    assert sorted(p.name for p in scene.SCENES_DIR.glob("*.xml")) == ["FE.xml", "stomach_fast.xml",
+                                                                      "stomach_full.xml"]
+    paths = {scene.scene_path(e, "fast") for e in ("SE", "DE", "UE1", "UE2")}
+    assert paths == {scene.SCENES_DIR / "stomach_fast.xml"}
+    amplitudes = {e: Simulator(e, "fast").f0 for e in ("SE", "DE", "UE1", "UE2")}
+    assert amplitudes == {"SE": 0.0, "DE": 1.0, "UE1": 2.0, "UE2": 3.0}  # paper: 0, f0, 2 f0, 3 f0
+    assert Simulator("FE").f0 == 0.0
 
 
 def test_dm_control_physics_builds_from_scene():

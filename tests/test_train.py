@@ -10,6 +10,7 @@ import pytest
 
 from mjendo.config import ConfigError
 from mjendo.envs import EndoscopeEnv
+from mjendo.paths import TRAINING_CONFIG
 from mjendo.policies import PolicyError, PPOController, load_controller
 from mjendo.task import NavigationTask
 from mjendo.train import latest_checkpoint, load_config, train
@@ -21,9 +22,7 @@ def short_run(tmp_path_factory):
     # Tiny budget: 2 envs x 64 steps per update, checkpoint and evaluate often.
     import yaml
 
-    from mjendo.train import CONFIG_FILE
-
-    raw = yaml.safe_load(CONFIG_FILE.read_text())
+    raw = yaml.safe_load(TRAINING_CONFIG.read_text())
     raw["defaults"].update(checkpoint_every=128, eval_every=256, eval_episodes=1, vec_env="dummy")
     raw["defaults"]["ppo"].update(n_steps=64, batch_size=64, n_epochs=1)
     cfg_path = out / "policies.yaml"
@@ -44,7 +43,7 @@ def test_fine_tuning_starts_from_the_policy_and_counts_its_own_steps(short_run, 
                 learning_rate=1e-3)
     meta = json.loads((run / "meta.json").read_text())
     assert run.name == "seed0" and meta["init_from"] == str(src) and meta["timesteps"] == 256
-    assert meta["config"]["ppo"]["learning_rate"] == 1e-3
+    assert meta["training"]["ppo"]["learning_rate"] == 1e-3
     before, after = (PPO.load(str(d / "model.zip"), device="cpu").policy.state_dict() for d in (src, run))
     changed = [k for k in before if not torch.equal(before[k], after[k])]
     assert changed, "fine-tuning did not update the weights"
@@ -54,10 +53,10 @@ def test_fine_tuning_starts_from_the_policy_and_counts_its_own_steps(short_run, 
 
 
 def test_fine_tune_config_block_applies_only_with_init_from(tmp_path):
-    assert load_config("E")["fidelity"] == "fast"
-    ft = load_config("E", init_from="models/policies/E")
-    assert ft["fidelity"] == "full" and ft["ppo"]["learning_rate"] == pytest.approx(1e-4)
-    assert ft["total_timesteps"] == 100000 and "finetune" not in ft
+    assert load_config("E", TRAINING_CONFIG).fidelity == "fast"
+    ft = load_config("E", TRAINING_CONFIG, init_from="models/policies/E")
+    assert ft.fidelity == "full" and ft.ppo.learning_rate == pytest.approx(1e-4)
+    assert ft.total_timesteps == 100000 and ft.init_from == "models/policies/E"
 
 
 def test_short_training_writes_a_loadable_policy(short_run):
@@ -66,7 +65,7 @@ def test_short_training_writes_a_loadable_policy(short_run):
                  "evaluations.csv", "curve.png", "best/model.zip", "best/vecnormalize.pkl", "best/meta.json"):
         assert (run / name).exists(), name
     assert json.loads((run / "best" / "meta.json").read_text())["timesteps"] in (256, 512)
-    ctrl = PPOController(run)
+    ctrl = PPOController.from_folder(run)
     env = EndoscopeEnv("DE", force_obs=False)
     obs, _ = env.reset(seed=0)
     ctrl.reset(env.task)
@@ -75,9 +74,14 @@ def test_short_training_writes_a_loadable_policy(short_run):
     env.step(a)
     with pytest.raises(PolicyError, match="expects 11 observations"):
         ctrl.check(EndoscopeEnv("DE", force_obs=True).task)
-    # The run records what its actions meant; a task with other scales is refused.
-    assert json.loads((run / "meta.json").read_text())["action_scales"] == {
-        "control_period_s": 0.03, "cable_mm_per_unit": 2.5, "insertion_mm_per_unit": 10.0}
+    # The run records the task it trained in and what its inputs mean; a task with other scales is refused.
+    meta = json.loads((run / "meta.json").read_text())
+    assert {k: meta["task"][k] for k in ("env", "force_obs", "control_period_s", "cable_mm_per_unit",
+                                         "insertion_mm_per_unit")} == {
+        "env": "DE", "force_obs": False, "control_period_s": 0.03, "cable_mm_per_unit": 2.5,
+        "insertion_mm_per_unit": 10.0}
+    assert [b["name"] for b in meta["observation"]] == ["ee_to_target", "ee_velocity", "cable_lengths",
+                                                        "previous_axial_action"]
     with pytest.raises(PolicyError, match="insertion_mm_per_unit 10.0 \\(task: 5.0\\)"):
         ctrl.check(NavigationTask(env="DE", force_obs=False, insertion_mm_per_unit=5.0))
 
@@ -104,17 +108,17 @@ def test_unreadable_checkpoint_is_named_on_resume(short_run, tmp_path, broken):
 
 def test_bad_policy_value_fails_fast():
     with pytest.raises(ConfigError, match="valid: A, B, C, D, E"):
-        load_config("F")
+        load_config("F", TRAINING_CONFIG)
     res = subprocess.run([sys.executable, "-m", "mjendo.train", "--policy", "Q"], capture_output=True, text=True)
     assert res.returncode == 2 and "unknown policy 'Q'" in res.stderr
 
 
 def test_missing_and_corrupt_policy_files(tmp_path):
     with pytest.raises(PolicyError, match="no policy file"):
-        PPOController(tmp_path)
+        PPOController.from_folder(tmp_path)
     (tmp_path / "model.zip").write_bytes(b"not a zip")
     with pytest.raises(PolicyError, match="corrupt"):
-        PPOController(tmp_path)
+        PPOController.from_folder(tmp_path)
     with pytest.raises(ConfigError, match="unknown policy"):
         load_controller("Z")
 
@@ -126,6 +130,7 @@ def test_unwritable_run_folder(tmp_path):
         train("E", timesteps=8, out=blocker)
 
 
+@pytest.mark.slow  # a PPO throughput figure: timing belongs to `make bench`, not the default suite
 def test_bench_training_figure_builds_the_shipped_ppo():
     # The bench must time the same PPO that training builds (it once broke on a new config key).
     from mjendo.bench import training_figure

@@ -10,7 +10,7 @@ import pytest
 from mjendo.baseline import DLSController
 from mjendo.config import ConfigError
 from mjendo.envs import EndoscopeEnv
-from mjendo.policies import rollout
+from mjendo.rollout import run
 from mjendo.viewer import project, record
 
 
@@ -25,7 +25,7 @@ def reachable_target():
     env = EndoscopeEnv("FE", max_steps=80)
     ctrl = DLSController(env.task)
     for t in env.task.stomach.info["free_reachable_targets"]:
-        if t in set(env.task.targets.tolist()) and rollout(env, ctrl, target=t)["is_success"]:
+        if t in set(env.task.targets.tolist()) and run(env, ctrl, target=t)[0]["is_success"]:
             return t
     pytest.fail("the baseline reached no free-space target")
 

@@ -331,7 +331,7 @@ def main(argv: list[str] | None = None) -> int:
     r = sub.add_parser("report", help="print sizes and mesh quality")
     r.add_argument("--dir", type=Path, default=STOMACH_DIR)
     args = ap.parse_args(argv)
-    if args.surface and (args.entry is None or args.axis is None):
+    if getattr(args, "surface", None) and (args.entry is None or args.axis is None):
         ap.error("--surface needs --entry and --axis (the cardia and insertion direction)")
 
     def command() -> None:

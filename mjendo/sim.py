@@ -178,9 +178,14 @@ class Simulator:
     # MuJoCo resets the state itself on a NaN and only leaves one of these warnings.
     _BAD = [int(mujoco.mjtWarning.mjWARN_BADQACC), int(mujoco.mjtWarning.mjWARN_BADQVEL),
             int(mujoco.mjtWarning.mjWARN_BADQPOS)]
+    _BADCTRL = int(mujoco.mjtWarning.mjWARN_BADCTRL)
 
     def check(self) -> None:
         d = self.data
+        if d.warning.number[self._BADCTRL]:
+            raise InstabilityError(f"a control was NaN or inf at t = {d.time:.3f} s (MuJoCo zeroed it, so the "
+                                   "actuators stopped): check the task's action scales (cable_mm_per_unit, "
+                                   "insertion_mm_per_unit) and the actions")
         bad = int(d.warning.number[self._BAD].sum())
         speed = float(np.abs(d.qvel).max()) if d.qvel.size else 0.0
         if bad or not speed < MAX_SPEED:

@@ -342,9 +342,10 @@ def _finish(run: Path, policy: str, ship: bool) -> None:
     """Ship if asked, and say how to use the result."""
     if ship:
         print(f"shipped to {artifacts.ship(run, policy)}")
+    make = f" (= make ship POLICY={policy} RUN={run.name})" if run.parent.parent.resolve() == paths.RUNS else ""
     print(f"watch it:    python -m mjendo.viewer --headless --record {policy}.mp4 --policy {run}\n"
           f"evaluate it: python -m mjendo.evaluation --policies {run} --trials 100\n"
-          f"ship it:     make ship POLICY={policy}" + ("" if run.name.startswith("seed") else f" RUN={run.name}"))
+          f"ship it:     python -m mjendo.artifacts ship {run} {policy}{make}")
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -14,6 +14,7 @@ withdraw, R reset, P toggle the policy.
 from __future__ import annotations
 
 import argparse
+import os
 from pathlib import Path
 
 import mujoco
@@ -215,20 +216,19 @@ def record(path: Path, policy: str = "E", env_name: str = "DE", episodes: int = 
 
 
 def _writable(folder: Path) -> bool:
-    import os
-
     return os.access(folder, os.W_OK)
 
 
 def interactive(policy: str, env_name: str, seed: int) -> None:
     """Window with keyboard driving (needs a display)."""
-    import mujoco.viewer
-
     try:
+        if not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+            raise RuntimeError("no display")
         import glfw
+        import mujoco.viewer
 
         if not glfw.init():
-            raise RuntimeError
+            raise RuntimeError("GLFW cannot open a window")
     except Exception:
         raise NoOpenGLError("no display for an interactive window: record a video instead with "
                             "`python -m mjendo.viewer --headless --record out.mp4`") from None

@@ -110,21 +110,24 @@ def test_target_moves_with_the_wall_in_de_not_in_se():
     assert travel("SE") < 0.2
 
 
-def test_force_blind_observation_has_no_force():
+def test_force_blind_observation_is_the_aware_one_without_force():
+    # Same seed and actions: the same physics; the blind observation must equal the aware one's first 11
+    # values at every step, and only the aware one sees the wall push back.
     blind, aware = EndoscopeEnv("SE", force_obs=False), EndoscopeEnv("SE", force_obs=True)
     assert blind.observation_space.shape == (11,) and aware.observation_space.shape == (15,)
-    for env in (blind, aware):
-        env.reset(seed=0)
-        for _ in range(70):  # push straight in until the wall resists
-            obs, _, term, _, info = env.step(np.array([0, 0, 0, 0, 0.4]))
-            if info["contact"] and np.linalg.norm(info["force_N"]) > 0.05:
-                break
-        assert info["contact"]
-    assert obs[11] == 1.0 and np.linalg.norm(obs[12:]) > 0.05  # aware sees it
-    obs_b = blind.task.observation()
-    assert obs_b.shape == (11,)
-    # The blind observation is exactly the aware one without the force blocks.
-    np.testing.assert_allclose(obs_b, blind.task.observation()[:11])
+    ob, _ = blind.reset(seed=0)
+    oa, _ = aware.reset(seed=0)
+    np.testing.assert_array_equal(ob, oa[:11])
+    for _ in range(70):  # push straight in until the wall resists
+        ob, _, _, _, ib = blind.step(np.array([0, 0, 0, 0, 0.4]))
+        oa, _, _, _, ia = aware.step(np.array([0, 0, 0, 0, 0.4]))
+        np.testing.assert_array_equal(ob, oa[:11])
+        assert ib["contact"] == ia["contact"]
+        if ia["contact"] and np.linalg.norm(ia["force_N"]) > 0.05:
+            break
+    assert ia["contact"]
+    assert oa[11] == 1.0 and np.linalg.norm(oa[12:]) > 0.05  # the aware policy sees it
+    np.testing.assert_allclose(oa[12:], ia["force_N"], rtol=1e-6)  # force / force_ref_n (1 N)
 
 
 def test_bad_actions_and_names():
@@ -168,17 +171,32 @@ def test_baseline_reaches_free_space_targets_in_fe():
 
 
 def test_dm_control_task_matches_the_gym_env():
+    # The same start state and actions through both APIs give the same observations and rewards.
+    import mujoco
+
     from mjendo import suite
 
-    e = suite.load("DE", force_obs=True)
-    ts = e.reset()
-    assert set(ts.observation) == {"ee_to_target", "ee_velocity", "cable_lengths", "previous_axial_action",
-                                   "contact", "force"}
-    ts = e.step(np.zeros(5))
-    assert ts.reward == pytest.approx(-e.physics.distance_mm())
-    assert e.control_timestep() == pytest.approx(0.03)
-    blind = suite.load("SE", force_obs=False)
-    assert "force" not in blind.reset().observation
+    gym_env = EndoscopeEnv("DE", force_obs=True)
+    dm_env = suite.load("DE", force_obs=True)
+    obs, _ = gym_env.reset(seed=5)
+    dm_env.reset()
+    g, d = gym_env.task, dm_env.task.core
+    spec = mujoco.mjtState.mjSTATE_INTEGRATION
+    state = np.empty(mujoco.mj_stateSize(g.sim.model, spec))
+    mujoco.mj_getState(g.sim.model, g.sim.data, state, spec)
+    mujoco.mj_setState(d.sim.model, d.sim.data, state, spec)
+    mujoco.mj_forward(d.sim.model, d.sim.data)
+    d.set_target(g.target)
+    rng = np.random.default_rng(0)
+    for _ in range(10):
+        a = rng.uniform(-0.4, 0.4, 5)
+        obs, r, *_ = gym_env.step(a)
+        ts = dm_env.step(a)
+        flat = np.concatenate([ts.observation[k] for k in ts.observation])
+        np.testing.assert_allclose(flat, obs, rtol=1e-5, atol=1e-5)
+        assert ts.reward == pytest.approx(r)
+    assert dm_env.control_timestep() == pytest.approx(0.03)
+    assert ts.reward == pytest.approx(-dm_env.physics.distance_mm())
 
 
 def test_render_external_and_tip_cameras():
@@ -213,3 +231,139 @@ def test_dm_control_specs_before_and_after_reset(name):
         spec.validate(ts.observation[key])
     ts = env.step(np.zeros(5))
     assert ts.mid() and ts.discount == 1.0 and np.isfinite(ts.reward)
+
+
+@pytest.mark.parametrize("name", ["FE", "SE", "DE", "UE1", "UE2"])
+def test_dm_control_specs_force_blind_and_discounts(name):
+    from mjendo import suite
+
+    env = suite.load(name, force_obs=False)
+    assert list(env.observation_spec()) == ["ee_to_target", "ee_velocity", "cable_lengths", "previous_axial_action"]
+    act = env.action_spec()
+    assert act.shape == (5,) and act.dtype == np.float64 and act.minimum.min() == -0.4 and act.maximum.max() == 0.4
+    env.reset()
+    ts = env.step(np.zeros(5))
+    assert ts.discount == 1.0 and ts.mid()
+
+
+def test_dm_control_discount_is_zero_on_success_and_exit_one_on_time_limit():
+    from mjendo import suite
+
+    env = suite.load("SE", force_obs=True, max_steps=200)
+    env.reset()
+    while True:  # withdraw through the cardia: terminal, absorbing
+        ts = env.step(np.array([0, 0, 0, 0, -0.4]))
+        if ts.last():
+            break
+    assert ts.discount == 0.0 and env.task.core.tip_x_mm() < 15.0
+    env = suite.load("SE", force_obs=True, max_steps=3)
+    env.reset()
+    steps = [env.step(np.zeros(5)) for _ in range(3)]
+    assert steps[-1].last() and steps[-1].discount == 1.0  # truncation: bootstrap
+
+
+def test_force_penalty_costs_reward_in_proportion_to_the_force():
+    def press(penalty):
+        env = EndoscopeEnv("SE", force_penalty=penalty)
+        env.reset(seed=0)
+        for _ in range(60):
+            _, r, _, _, info = env.step(np.array([0, 0, 0, 0, 0.4]))
+            if np.linalg.norm(info["force_N"]) > 0.2:
+                return r, info
+        raise AssertionError("never pressed the wall")
+
+    r0, i0 = press(0.0)
+    r2, i2 = press(2.0)
+    f = np.linalg.norm(i2["force_N"])
+    assert i0["reward_force"] == 0.0 and i2["reward_force"] == pytest.approx(-2.0 * f)
+    assert r2 == pytest.approx(r0 - 2.0 * f)
+
+
+def test_randomize_phase_draws_the_load_phase_and_can_be_switched_off():
+    def start_times(randomize):
+        env = EndoscopeEnv("DE", randomize_phase=randomize)
+        cycle = 2 * env.task.sim.half_period
+        times = set()
+        for seed in range(6):
+            env.reset(seed=seed)
+            times.add(round(env.task.sim.time % cycle, 3))
+        return times
+
+    assert len(start_times(True)) >= 4
+    assert len(start_times(False)) == 1
+
+
+def test_target_list_override_uses_the_other_list():
+    st_a = EndoscopeEnv("DE")
+    st_b = EndoscopeEnv("DE", target_list="B")
+    a = {st_a.reset(seed=s)[1]["target_index"] for s in range(30)}
+    b = {st_b.reset(seed=s)[1]["target_index"] for s in range(30)}
+    assert a <= set(st_a.task.stomach.targets_a) and b <= set(st_a.task.stomach.targets_b)
+    assert not (a & b)
+    assert EndoscopeEnv("UE1").task.target_list == "B" and EndoscopeEnv("UE1", target_list="A").task.target_list == "A"
+
+
+BAD_TASK_ARGS = [
+    ({"force_penalty": float("nan")}, "force_penalty must be a finite number"),
+    ({"force_penalty": float("inf")}, "force_penalty must be a finite number"),
+    ({"force_penalty": -1.0}, "force_penalty must be a finite number >= 0"),
+    ({"force_ref_n": 0.0}, "force_ref_n must be a finite number > 0"),
+    ({"cable_mm_per_unit": float("nan")}, "cable_mm_per_unit must be a finite number"),
+    ({"insertion_mm_per_unit": float("inf")}, "insertion_mm_per_unit must be a finite number"),
+    ({"force_obs": "false"}, "force_obs must be True or False"),
+    ({"randomize_phase": 1}, "randomize_phase must be True or False"),
+    ({"max_steps": 1.7}, "max_steps must be a whole number"),
+    ({"max_steps": 0}, "max_steps must be a whole number >= 1"),
+    ({"width": 0}, "width must be a whole number of pixels"),
+    ({"height": 100000}, "height must be a whole number of pixels"),
+    ({"control_period_s": 0.025}, "not a multiple"),
+    ({"cable_mm": 2.0}, "unknown task argument"),
+]
+
+
+@pytest.mark.parametrize("kwargs,message", BAD_TASK_ARGS)
+def test_bad_task_arguments_are_refused_at_construction(kwargs, message):
+    with pytest.raises(ConfigError, match=message):
+        EndoscopeEnv("DE", **kwargs)
+
+
+def test_bad_control_never_reaches_mujoco_silently():
+    # MuJoCo zeroes a NaN control with only a BADCTRL warning; the simulator treats it as divergence.
+    env = EndoscopeEnv("DE")
+    env.reset(seed=0)
+    env.task.sim.data.ctrl[0] = np.nan
+    import mujoco
+
+    mujoco.mj_step(env.task.sim.model, env.task.sim.data)
+    from mjendo.sim import InstabilityError
+
+    with pytest.raises(InstabilityError, match="control"):
+        env.task.sim.check()
+
+
+def test_env_copies_and_pickles_after_rendering():
+    import copy
+    import pickle
+
+    env = EndoscopeEnv("DE", render_mode="rgb_array", width=64, height=48)
+    env.reset(seed=0)
+    frame = env.render()
+    twin = copy.deepcopy(env)
+    back = pickle.loads(pickle.dumps(env))
+    np.testing.assert_array_equal(twin.step(np.zeros(5))[0], env.step(np.zeros(5))[0])  # same state, copied
+    for e in (twin, back, env):
+        assert e.render().shape == frame.shape  # a new renderer is made on demand
+        e.close()
+
+
+def test_observations_have_physical_bounds_and_check_env_is_quiet(recwarn):
+    env = EndoscopeEnv("DE")
+    space = env.observation_space
+    assert np.isfinite(space.low).all() and np.isfinite(space.high).all()
+    assert space.high[0] == 1000.0 and space.high[3] == 5000.0 and space.high[12] == 100.0
+    check_env(env, skip_render_check=True)
+    assert not [w for w in recwarn if "mjendo" in str(w.filename) or "Box" in str(w.message)
+                or "bound" in str(w.message).lower()], [str(w.message) for w in recwarn]
+    env.task.sim.data.qvel[:] = 0.0
+    obs = env.task.observation(np.array([5.0, 0.0, 0.0]))  # 5 m away: clipped to the 1 m bound
+    assert obs[0] == 1000.0 and space.contains(obs)

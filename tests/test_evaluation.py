@@ -60,3 +60,87 @@ def test_trajectory_and_force_figures_from_constructed_paths(tmp_path, stomach):
 def test_unknown_policy_is_refused():
     with pytest.raises(ConfigError, match="valid: A, B, C, D, E, baseline"):
         evaluate(trials=1, controllers=("Z",))
+
+
+def test_default_output_is_untracked_and_a_bigger_study_is_not_overwritten(tmp_path, monkeypatch):
+    from mjendo import evaluation
+
+    assert evaluation.default_out("fast").parts[-3:] == ("runs", "eval", "fast")  # runs/ is git-ignored
+    (tmp_path / "summary.csv").write_text("controller,env,trials\nE,DE,200\n")
+    with pytest.raises(ConfigError, match="made with 200 trials per cell; this run has 10.*--overwrite"):
+        evaluate(trials=10, controllers=("baseline",), workers=1, out=tmp_path)
+    res = evaluation.main(["--trials", "10", "--policies", "baseline", "--out", str(tmp_path)])
+    assert res == 2
+
+
+def test_report_embeds_every_figure_with_a_caption(tmp_path, monkeypatch):
+    monkeypatch.setenv("MJENDO_POLICIES", str(tmp_path / "none"))
+    evaluate(trials=1, controllers=("baseline",), workers=1, out=tmp_path, envs=("DE",))
+    report = (tmp_path / "report.md").read_text()
+    embedded = [line for line in report.splitlines() if line.startswith("![")]
+    assert embedded and all((tmp_path / line.split("(")[-1].rstrip(")")).exists() for line in embedded)
+    assert "success_rates.png" in report and "95 % Wilson intervals" in report
+
+
+def test_a_run_folder_is_evaluated_like_a_shipped_policy(tmp_path):
+    import shutil
+
+    from mjendo.paths import policies_dir
+
+    run = tmp_path / "runs" / "D" / "seed0"
+    shutil.copytree(policies_dir() / "D", run)
+    res = evaluate(trials=1, controllers=(str(run),), workers=1, out=tmp_path / "out", envs=("DE",))
+    (row,) = res["rows"]
+    assert row["controller"] == str(run) and row["error"] == "" and row["trials"] == 1
+    with pytest.raises(ConfigError, match="holds no model.zip"):
+        evaluate(trials=1, controllers=(str(tmp_path),), workers=1, out=tmp_path / "x")
+
+
+def _figure_of(monkeypatch, draw):
+    """Run a figure function and return the matplotlib figure it drew (instead of closing it)."""
+    import matplotlib.pyplot as plt
+
+    kept = []
+    monkeypatch.setattr(plt, "close", lambda fig=None: kept.append(fig))
+    draw()
+    return kept[-1]
+
+
+def test_success_figure_has_labels_intervals_and_a_distinct_paper_swatch(tmp_path, monkeypatch):
+    rows = summarize([trial(True, 1.0), trial(False, 5.0)]) + summarize(
+        [Trial("D", "DE", 0, 0, 5, True, 1.0, 10, 10.0, False, 0.1, 0.2, 3.0)])
+    fig = _figure_of(monkeypatch, lambda: figures.success_bars(rows, tmp_path / "s.png"))
+    ax = fig.axes[0]
+    assert ax.get_xlabel() and ax.get_ylabel()
+    assert len([c for c in ax.containers if getattr(c, "errorbar", None) is not None]) == 2  # one CI per bar
+    legend = ax.get_legend()
+    labels = [t.get_text() for t in legend.get_texts()]
+    assert labels == ["E", "D", "paper"]
+    patches = legend.get_patches()
+    assert patches[2].get_hatch() == "//" and patches[2].get_facecolor() != patches[0].get_facecolor()
+    # The legend sits outside the axes, never over the bars.
+    fig.canvas.draw()
+    box, area = legend.get_window_extent(), ax.get_window_extent()
+    assert box.x0 >= area.x1 - 1
+
+
+def test_force_profile_draws_no_spline_through_a_handful_of_runs(tmp_path, monkeypatch):
+    paths = [{"force_n": np.array([0.0, 1.0, 0.2, 0.0]), "distance_mm": np.array([30.0, 20.0, 10.0, 2.0])}
+             for _ in range(3)]
+    fig = _figure_of(monkeypatch, lambda: figures.force_distance(paths, tmp_path / "f.png", "Policy E in DE"))
+    for ax in fig.axes:
+        assert "Policy E in DE" in ax.get_title()
+        mean = [ln for ln in ax.get_lines() if ln.get_linewidth() > 2]
+        assert len(mean) == 1 and "spline" not in mean[0].get_label()
+        runs = np.array([ln.get_ydata() for ln in ax.get_lines() if ln.get_linewidth() < 2])
+        assert mean[0].get_ydata().max() <= runs.max() + 1e-9  # never above every run
+
+
+def test_training_figure_is_one_row_per_policy(tmp_path, monkeypatch):
+    from mjendo.paths import policies_dir
+
+    runs = [policies_dir() / p for p in "BCDE"]
+    fig = _figure_of(monkeypatch, lambda: figures.training_curve(runs, tmp_path / "t.png", list("BCDE")))
+    assert len(fig.axes) == 8
+    for ax in fig.axes:
+        assert len(ax.get_lines()) <= 2  # small multiples, not 8 series on one panel

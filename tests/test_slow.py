@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from mjendo import anatomy, targets
+from mjendo import targets
 from mjendo.sim import Simulator
 
 pytestmark = pytest.mark.slow
@@ -35,13 +35,21 @@ def test_full_fem_wall_follows_the_load(stomach, env, scale):
     assert 2.0 * scale < p2p_mm < 15.0 * scale
 
 
-def test_full_and_fast_agree_on_the_anchors(stomach):
+def test_full_and_fast_settle_to_the_same_stomach(stomach):
+    # Same anchors, same load-free rest shape: both fidelities sag 3-3.5 mm under gravity, and their
+    # settled walls agree within 2.5 mm (measured: 1.6 mm max, 0.75 mm median).
+    settled, sag = {}, {}
     for fid in ("fast", "full"):
         sim = Simulator("SE", fid)
-        x0 = sim.vertices(stomach.fixed)
+        x0 = sim.vertices()
+        sim.set_controls(np.zeros(4), sim.insertion_range[0])
         sim.step(300)
-        assert np.abs(sim.vertices(stomach.fixed) - x0).max() < 1e-3
-    assert anatomy.load().fixed == stomach.fixed
+        settled[fid] = sim.vertices()
+        sag[fid] = np.linalg.norm(settled[fid] - x0, axis=1).max() * 1e3
+        assert np.abs(settled[fid][stomach.fixed] - x0[stomach.fixed]).max() < 1e-3
+    assert all(2.0 < s < 5.0 for s in sag.values()), sag
+    apart = np.linalg.norm(settled["fast"] - settled["full"], axis=1) * 1e3
+    assert apart.max() < 2.5 and np.median(apart) < 1.0
 
 
 def test_fast_stomach_is_calibrated_to_the_full_one():

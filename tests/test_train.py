@@ -137,3 +137,85 @@ def test_bench_training_figure_builds_the_shipped_ppo():
 
     r = training_figure("dummy", 2048)
     assert r["n_envs"] == 2 and r["steps_per_s"] > 20
+
+
+def _cli(*args, cwd=None):
+    return subprocess.run([sys.executable, "-m", "mjendo.train", *args], capture_output=True, text=True, cwd=cwd)
+
+
+@pytest.mark.parametrize("args,message", [
+    (["--n-envs", "0"], "n_envs must be >= 1"),
+    (["--seed", "-1"], "seed must be >= 0"),
+    (["--timesteps", "0"], "total_timesteps must be >= 1"),
+])
+def test_training_cli_refuses_bad_arguments_in_one_line(args, message, tmp_path):
+    res = _cli("--policy", "E", "--out", str(tmp_path), *args)
+    assert res.returncode == 2 and message in res.stderr and "Traceback" not in res.stderr
+    assert not list(tmp_path.rglob("model.zip"))  # nothing that looks like a finished run
+
+
+@pytest.mark.parametrize("text,message", [
+    ("defaults: {}\n", "must be a YAML mapping with 'defaults' and 'policies'"),
+    ("[not, a, mapping", "is not valid YAML"),
+    ("- a list\n", "must be a YAML mapping"),
+])
+def test_broken_training_config_files(tmp_path, text, message):
+    path = tmp_path / "policies.yaml"
+    path.write_text(text)
+    res = _cli("--policy", "E", "--config", str(path), "--out", str(tmp_path))
+    assert res.returncode == 2 and message in res.stderr and "Traceback" not in res.stderr
+
+
+def _yaml_with(tmp_path, edit):
+    import yaml
+
+    raw = yaml.safe_load(TRAINING_CONFIG.read_text())
+    edit(raw)
+    path = tmp_path / "policies.yaml"
+    path.write_text(yaml.safe_dump(raw))
+    return path
+
+
+@pytest.mark.parametrize("edit,message", [
+    (lambda r: r["defaults"].update(learnin_rate=1e-3), "unknown key.*learnin_rate"),
+    (lambda r: r["defaults"]["ppo"].update(n_step=64), r"ppo: unknown key.*n_step"),
+    (lambda r: r["defaults"]["ppo"].update(n_steps="64"), "ppo.n_steps must be a whole number"),
+    (lambda r: r["policies"]["E"].update(force_obs="yes"), "force_obs must be true or false"),
+    (lambda r: r["defaults"].pop("eval_every"), "missing key.*eval_every"),
+    (lambda r: r["policies"]["E"].update(task={"insertion_mm": 5}), "task block: unknown"),
+    (lambda r: r["policies"]["E"].update(task={"force_penalty": -1.0}), "force_penalty must be"),
+    (lambda r: r["defaults"]["ppo"].update(lr_schedule="cosine"), "lr_schedule must be"),
+])
+def test_training_config_is_validated(tmp_path, edit, message):
+    with pytest.raises(ConfigError, match=message):
+        load_config("E", _yaml_with(tmp_path, edit))
+
+
+def test_per_policy_ppo_and_task_blocks_merge_into_the_defaults(tmp_path):
+    def edit(raw):
+        raw["policies"]["E"]["ppo"] = {"n_epochs": 4}
+        raw["policies"]["E"]["task"] = {"force_penalty": 0.5, "max_steps": 96}
+
+    cfg = load_config("E", _yaml_with(tmp_path, edit))
+    assert cfg.ppo.n_epochs == 4 and cfg.ppo.n_steps == 1024 and cfg.ppo.net_arch == [256, 128, 64, 32]
+    task = cfg.task_config()
+    assert task.force_penalty == 0.5 and task.max_steps == 96 and task.env == "DE" and task.force_obs
+    assert load_config("D", _yaml_with(tmp_path, edit)).ppo.n_epochs == 10  # other policies keep the defaults
+
+
+def test_stray_files_in_the_checkpoint_folder_are_ignored(short_run, tmp_path):
+    run, _ = short_run
+    copy = tmp_path / "D" / run.name
+    shutil.copytree(run, copy)
+    (copy / "checkpoints" / "model_final.zip").write_bytes(b"a user's copy")
+    assert latest_checkpoint(copy).name == "model_512.zip"
+
+
+def test_training_says_where_it_writes_and_how_to_use_the_result(short_run, tmp_path):
+    run, _ = short_run
+    res = _cli("--policy", "D", "--out", str(run.parent.parent), "--config", str(run.parent.parent / "policies.yaml"),
+               "--timesteps", "512")
+    assert res.returncode == 0, res.stderr
+    assert f"run folder: {run}" in res.stdout
+    for hint in (f"--policy {run}", f"mjendo.evaluation --policies {run}", f"mjendo.artifacts ship {run} D"):
+        assert hint in res.stdout

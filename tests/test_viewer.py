@@ -72,3 +72,84 @@ def test_bad_output_camera_and_policy(tmp_path):
     res = subprocess.run([sys.executable, "-m", "mjendo.viewer", "--headless", "--record", str(tmp_path / "y.mp4"),
                           "--policy", "Q"], capture_output=True, text=True)
     assert res.returncode == 2 and "unknown policy 'Q'" in res.stderr
+
+
+@pytest.mark.parametrize("args,message", [
+    (["--episodes", "0"], "--episodes must be a whole number in [1,"),
+    (["--episodes", "-1"], "--episodes must be"),
+    (["--width", "0"], "--width must be"),
+    (["--width", "100000"], "--width must be"),
+    (["--fps", "-5"], "--fps must be"),
+    (["--seed", "-1"], "--seed must be"),
+])
+def test_viewer_refuses_arguments_that_would_write_nothing(tmp_path, args, message):
+    out = tmp_path / "v.mp4"
+    res = subprocess.run([sys.executable, "-m", "mjendo.viewer", "--headless", "--record", str(out), "--policy",
+                          "random", *args], capture_output=True, text=True)
+    assert res.returncode == 2 and message in res.stderr and "Traceback" not in res.stderr
+    assert "wrote" not in res.stdout and not out.exists()
+
+
+def test_interactive_without_a_display_says_how_to_record(monkeypatch, capsys):
+    from mjendo import viewer
+
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    assert viewer.main(["--policy", "random"]) == 2
+    err = capsys.readouterr().err
+    assert "no display" in err and "--headless --record out.mp4" in err and "GLFW" not in err
+
+
+def test_caption_scales_with_the_frame():
+    from mjendo.viewer import caption
+
+    def box_height(h):
+        frame = np.full((h, h * 4 // 3, 3), 200, np.uint8)
+        out = caption(frame, ["DE  step  10  t  0.30 s", "distance  12.0 mm"])
+        dark = np.flatnonzero((out[:, 2] < 20).all(axis=1))
+        return dark.max() - dark.min() + 1
+
+    small, large = box_height(240), box_height(960)
+    assert small >= 20 and large / small == pytest.approx(4.0, rel=0.25)
+
+
+def test_episode_time_restarts_and_a_success_is_held(tmp_path, reachable_target, monkeypatch):
+    from mjendo import viewer
+
+    times = []
+    original = viewer.Recorder.frame
+
+    def spy(self, info, episode_time):
+        times.append((info.get("step", 0), episode_time))
+        return original(self, info, episode_time)
+
+    monkeypatch.setattr(viewer.Recorder, "frame", spy)
+    fps = 10
+    r = record(tmp_path / "two.mp4", policy="baseline", env_name="FE", episodes=2, camera="external", width=160,
+               height=120, fps=fps, target=reachable_target)
+    starts = [t for step, t in times if step == 0]
+    assert starts == [0.0, 0.0]  # each episode's clock starts at 0
+    assert r["successes"] == 2
+    # Every success stays on screen for SUCCESS_HOLD_S: rendered frames + held copies of the last one.
+    assert r["frames"] == len(times) + 2 * round(viewer.SUCCESS_HOLD_S * fps)
+
+
+def test_tip_camera_shows_the_wall_lit_by_the_tip_light_not_a_giant_target(reachable_target):
+    import mujoco
+
+    from mjendo.viewer import Recorder
+
+    env = EndoscopeEnv("DE", max_steps=80)
+    m = env.task.sim.model
+    light = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_LIGHT, "tip_light")
+    assert light >= 0 and m.light_bodyid[light] == env.task.sim.tip_body
+    env.reset(seed=0)
+    # Put the target right in front of the tip, as at the end of a successful approach.
+    env.task.sim.set_target_marker(env.task.sim.tip_pos() + 0.004 * env.task.sim.tip_axis())
+    rec = Recorder(env, "both", 160, 120)
+    frame = rec.frame({"step": 0}, 0.0)
+    rec.close()
+    tip_pane = frame[:, 160:]
+    white = np.mean(tip_pane.min(axis=2) > 235)
+    assert white < 0.05, f"{white:.0%} of the tip view is white"
+    assert tip_pane.std() > 5  # not blank: the lit wall shows

@@ -1,0 +1,228 @@
+"""The policy folder: what a trained policy is on disk, written and read only here.
+
+A policy folder (a finished run ``runs/<P>/seed<N>/``, its ``best/``, or a
+shipped ``models/policies/<P>/``) holds:
+
+| file | what |
+|---|---|
+| ``model.zip`` | the Stable-Baselines3 PPO model |
+| ``vecnormalize.pkl`` | observation normalisation (VecNormalize), when the run normalised |
+| ``meta.json`` | the task config it trained in, the observation layout, run facts (seed, steps, time) |
+| ``config.yaml`` | the resolved training config of the run |
+| ``episodes.csv``, ``evaluations.csv``, ``curve.png`` | training logs and curve |
+
+Loading reads everything it needs from the folder itself (never from
+today's training YAML) and checks that the pieces fit together. Both
+``model.zip`` and ``vecnormalize.pkl`` are pickles: loading them runs
+code, so load only policy folders you trust.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import pickle
+import shutil
+from dataclasses import asdict, dataclass, fields
+from pathlib import Path
+
+import numpy as np
+
+from mjendo import paths
+from mjendo.config import ConfigError, TaskConfig, task_config
+from mjendo.train_config import POLICY_NAMES
+
+MODEL_FILE = "model.zip"
+NORM_FILE = "vecnormalize.pkl"
+META_FILE = "meta.json"
+CONFIG_FILE = "config.yaml"
+LOG_FILES = ("episodes.csv", "evaluations.csv", "curve.png")
+FORMAT = 2  # meta.json layout: 2 = with "task" and "observation"
+
+
+class PolicyError(ValueError):
+    """A policy cannot be loaded or does not fit the task; the message names the file and what to do."""
+
+
+def observation_layout(force_obs: bool) -> list[dict]:
+    """(name, size, unit) of each observation block, in order: what a policy's input means."""
+    from mjendo.task import obs_blocks
+
+    return [{"name": n, "size": k, "unit": u} for n, k, u, _ in obs_blocks(force_obs)]
+
+
+def task_meta(cfg: TaskConfig) -> dict:
+    """The part of meta.json that says what task the policy acts in."""
+    return {"format": FORMAT, "task": asdict(cfg), "observation": observation_layout(cfg.force_obs)}
+
+
+def write_meta(directory: Path, meta: dict) -> None:
+    path = Path(directory) / META_FILE
+    tmp = path.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(meta, indent=1) + "\n")
+    os.replace(tmp, path)
+
+
+def save(directory: Path, model, meta: dict) -> None:
+    """model.zip (+ vecnormalize.pkl when the model's env normalises) + meta.json."""
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    model.save(str(directory / MODEL_FILE))
+    env = model.get_env()
+    if hasattr(env, "obs_rms"):
+        env.save(str(directory / NORM_FILE))
+    write_meta(directory, meta)
+
+
+def read_meta(directory: Path) -> dict:
+    """meta.json as a dict, checked; a folder without one (a bare model.zip) gives {}."""
+    path = Path(directory) / META_FILE
+    if not path.exists():
+        return {}
+    try:
+        meta = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise PolicyError(f"cannot read {path}: {exc}; restore it from the run folder or git") from exc
+    if not isinstance(meta, dict):
+        raise PolicyError(f"{path} must hold a JSON object (policy, task, observation, ...), not a "
+                          f"{type(meta).__name__}; restore it from the run folder or git")
+    if "task" in meta:
+        if not isinstance(meta["task"], dict):
+            raise PolicyError(f"{path}: 'task' must be an object of TaskConfig fields")
+        try:
+            task_config(**{k: v for k, v in meta["task"].items() if k in {f.name for f in fields(TaskConfig)}})
+        except (ConfigError, TypeError) as exc:
+            raise PolicyError(f"{path}: its task is not valid ({exc}); restore it from the run folder") from exc
+    return meta
+
+
+def trained_task(meta: dict) -> dict:
+    """The TaskConfig fields the policy trained with (meta["task"])."""
+    return dict(meta.get("task", {}))
+
+
+@dataclass
+class Policy:
+    """A loaded policy: the PPO model, its observation normalisation and its meta."""
+
+    directory: Path
+    model: object  # stable_baselines3.PPO
+    obs_rms: object | None  # RunningMeanStd
+    clip_obs: float
+    epsilon: float
+    meta: dict
+
+    @property
+    def name(self) -> str:
+        return str(self.meta.get("policy", self.directory.name))
+
+    @property
+    def n_obs(self) -> int:
+        return int(self.model.observation_space.shape[0])
+
+
+def _load_norm(path: Path, n_obs: int):
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    try:
+        with open(path, "rb") as f:
+            vn = pickle.load(f)
+    except Exception as exc:  # truncated file, unknown classes, not a pickle
+        raise PolicyError(f"cannot read {path}: {exc}; it is corrupt: copy it again from the run folder "
+                          "(checkpoints/vecnormalize_<steps>.pkl)") from exc
+    if not isinstance(vn, VecNormalize):
+        raise PolicyError(f"{path} holds a {type(vn).__name__}, not a Stable-Baselines3 VecNormalize; copy the "
+                          "run's own vecnormalize.pkl next to its model.zip")
+    shape = tuple(np.shape(getattr(vn.obs_rms, "mean", ())))
+    if shape != (n_obs,):
+        raise PolicyError(f"{path} normalises {shape[0] if shape else 0} observations but {path.parent / MODEL_FILE} "
+                          f"takes {n_obs}: the two files come from different runs; copy the matching "
+                          "vecnormalize.pkl from the model's run folder")
+    return vn
+
+
+def load(directory: Path) -> Policy:
+    """Load and check a policy folder; every problem is one PolicyError naming the file and the fix."""
+    from stable_baselines3 import PPO
+
+    directory = Path(directory)
+    path = directory / MODEL_FILE
+    if not path.exists():
+        raise PolicyError(f"no policy file at {path}: train one with `make train POLICY=...` or pass a folder "
+                          "holding model.zip")
+    meta = read_meta(directory)
+    try:
+        model = PPO.load(str(path), device="cpu")
+    except Exception as exc:  # zip/pickle/torch errors
+        raise PolicyError(f"cannot load {path}: {exc}; the file is corrupt or not an SB3 PPO model") from exc
+    n_obs = int(model.observation_space.shape[0])
+    layout = meta.get("observation")
+    if layout is not None and sum(int(b["size"]) for b in layout) != n_obs:
+        raise PolicyError(f"{directory / META_FILE} describes {sum(int(b['size']) for b in layout)} observations but "
+                          f"{path} takes {n_obs}: meta.json belongs to another run; restore it from the run folder")
+    norm = directory / NORM_FILE
+    vn = _load_norm(norm, n_obs) if norm.exists() else None
+    return Policy(directory, model, vn.obs_rms if vn else None, float(vn.clip_obs) if vn else 10.0,
+                  float(vn.epsilon) if vn else 1e-8, meta)
+
+
+def resolve(spec: str) -> Path:
+    """'A'..'E' (shipped), a policy or run folder, or a model.zip inside one -> the folder."""
+    if spec in POLICY_NAMES:
+        return paths.policies_dir() / spec
+    p = Path(spec)
+    if p.suffix == ".zip":
+        return p.parent
+    if p.is_dir():
+        return p
+    raise ConfigError(f"unknown policy {spec!r}; valid: {', '.join(POLICY_NAMES)}, baseline, random, or a policy "
+                      "folder with model.zip (e.g. runs/E/seed0)")
+
+
+def force_obs(directory: Path) -> bool:
+    """Whether the policy in ``directory`` observes contact and force: its meta, else its input size."""
+    meta = read_meta(directory)
+    if "force_obs" in meta.get("task", {}):
+        return bool(meta["task"]["force_obs"])
+    from mjendo.task import obs_size
+
+    return load(directory).n_obs == obs_size(True)
+
+
+def ship(run: Path, policy: str) -> Path:
+    """Copy a finished run's final policy and logs into models/policies/<policy>/ (what users get).
+
+    The run's own meta.json travels with it: what the run used, never
+    today's defaults. Final weights, not ``best/``: with the learning rate
+    decayed to 0 the end of the run is the converged policy (docs/training.md).
+    """
+    run = Path(run)
+    meta = read_meta(run)
+    if not (run / MODEL_FILE).exists() or not meta.get("timesteps"):
+        raise PolicyError(f"{run} is not a finished run (no {MODEL_FILE} or no trained steps in {META_FILE}); "
+                          "finish it with the same `make train` command first")
+    dest = paths.policies_dir() / policy
+    dest.mkdir(parents=True, exist_ok=True)
+    for name in (META_FILE, CONFIG_FILE, MODEL_FILE, NORM_FILE, *LOG_FILES):
+        if (run / name).exists():
+            shutil.copy2(run / name, dest / name)
+    return dest
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m mjendo.artifacts ship RUN POLICY`` (``make ship``): copy a finished run's policy."""
+    import argparse
+
+    from mjendo import cli
+
+    ap = argparse.ArgumentParser(prog="python -m mjendo.artifacts", description=main.__doc__)
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    s = sub.add_parser("ship", help="copy a finished run to models/policies/<POLICY>/")
+    s.add_argument("run", type=Path, help="run folder, e.g. runs/E/seed0")
+    s.add_argument("policy", choices=POLICY_NAMES)
+    a = ap.parse_args(argv)
+    return cli.run(lambda: print(f"shipped {a.run} to {ship(a.run, a.policy)}"), PolicyError)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

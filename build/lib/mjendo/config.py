@@ -1,0 +1,338 @@
+"""Every physical number of mjendo, in one place, with where it comes from.
+
+"paper" means Ng, Gao, Ren, Lai, Ren, *Contact-Aided Navigation of Flexible
+Robotic Endoscope Using Deep Reinforcement Learning in Dynamic Stomach*.
+Lengths here are in millimetres where the source quotes millimetres; the
+model builders convert them once through :mod:`mjendo.units`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, fields, replace
+
+import numpy as np
+
+# --------------------------------------------------------------------------
+# Paper facts used as checks (not as free parameters).
+PAPER_STOMACH_LENGTH_MM = 190.0  # paper: average adult male stomach length
+PAPER_GREATER_CURVATURE_MM = 344.0  # paper: greater curvature length
+PAPER_ACTIVE_SEGMENT_MM = 79.0  # paper: active bending segment
+PAPER_N_FIXED = 3  # paper: 3 fixed vertex indices
+PAPER_N_FORCED = 2  # paper: 2 forced vertex indices
+PAPER_F0_N = 1.0  # paper: |f0| = 1 N square-wave force
+PAPER_ALARM_DISTANCE_MM = 2.0  # paper: SOFA alarm distance
+PAPER_CONTACT_DISTANCE_MM = 0.5  # paper: SOFA contact distance
+PAPER_FRICTION = 0.1  # paper: friction coefficient
+GRAVITY = 9.8  # paper: m/s^2
+
+
+@dataclass(frozen=True)
+class StomachShape:
+    """Parameters of the built-in J-shaped stomach (lumen centreline + radius).
+
+    The defaults were tuned (``python -m mjendo.anatomy report``) so that the
+    outer length and greater curvature match the paper's 190 mm and 344 mm
+    within a few per cent.
+    """
+
+    fundus_radius_mm: float = 40.0  # dome over the cardia
+    body_radius_mm: float = 40.0  # corpus, widest part
+    body_length_mm: float = 50.0  # straight descending part after the dome
+    bend_radius_mm: float = 50.0  # radius of the J's bottom (angular incisure)
+    bend_angle_deg: float = 100.0  # how far the J turns back up
+    antrum_radius_mm: float = 26.0  # radius where the antrum begins
+    antrum_length_mm: float = 20.0  # straight antrum after the bend
+    pylorus_radius_mm: float = 11.0  # closed pyloric end
+    # A distended adult gastric wall measures about 3-5 mm; 5 mm keeps the
+    # single-layer tets of a coarse mesh reasonably shaped.
+    wall_thickness_mm: float = 5.0
+    wall_layers: int = 1  # tet layers through the wall (the refinement study uses 2)
+    n_around: int = 12  # vertices around each ring (even: both curvatures)
+    ring_spacing_mm: float = 20.0  # target spacing of rings along the centreline
+    # Cardia (gastro-oesophageal junction): on the lesser-curvature side, just
+    # below the fundus dome; its opening is about 2.5-3 cm across.
+    cardia_arclength_mm: float = 12.0
+    cardia_radius_mm: float = 15.0
+
+
+@dataclass(frozen=True)
+class Material:
+    """Linear elastic stomach wall (MuJoCo flex ``<elasticity>``)."""
+
+    # Reported moduli of gastric wall span 1e3-1e6 Pa (indentation vs tensile,
+    # strain level). We calibrated this value so that the paper's 1 N periodic load moves the
+    # loaded wall by millimetres to about a centimetre (see docs/physics.md).
+    young_pa: float = 150e3
+    # Tissue is nearly incompressible (~0.45-0.49), but poisson near 0.45 on a
+    # coarse single-layer mesh is ill-conditioned in MuJoCo; 0.3 is the
+    # compromise (documented in docs/physics.md).
+    poisson: float = 0.3
+    # s; stiffness-proportional (Rayleigh beta) damping: tissue dissipation, so
+    # the wall settles within ~0.1 s instead of ringing.
+    damping: float = 0.03
+    density_kg_m3: float = 1040.0  # soft tissue
+
+
+@dataclass(frozen=True)
+class Contact:
+    """Paper's SOFA contact settings mapped onto MuJoCo.
+
+    MuJoCo creates a contact when the surfaces are closer than ``margin`` and
+    the constraint acts when closer than ``margin - gap``: so margin = alarm
+    distance (2 mm) and gap = alarm - contact distance (1.5 mm) reproduce
+    SOFA's 'detect at 2 mm, keep 0.5 mm apart'. SOFA's Lagrange-multiplier
+    contact (no interpenetration) maps to MuJoCo's constraint solver with a
+    hard impedance.
+    """
+
+    margin_mm: float = PAPER_ALARM_DISTANCE_MM
+    gap_mm: float = PAPER_ALARM_DISTANCE_MM - PAPER_CONTACT_DISTANCE_MM
+    friction: float = PAPER_FRICTION
+    solimp: tuple[float, float, float] = (0.95, 0.99, 0.001)
+
+
+@dataclass(frozen=True)
+class Endoscope:
+    """Flexible robotic endoscope: chain of capsules, 4 cables, insertion slide."""
+
+    diameter_mm: float = 9.8  # adult gastroscopes are about 9-10 mm
+    active_length_mm: float = PAPER_ACTIVE_SEGMENT_MM
+    n_active_links: int = 8
+    # Only the part that can enter the stomach is simulated (paper's passive
+    # segment is 1000 mm). It must reach from the cardia to the far wall.
+    passive_length_mm: float = 200.0
+    n_passive_links: int = 8
+    cable_offset_mm: float = 3.5  # cable channel radius inside the 9.8 mm tube
+    # Bending stiffness EI. Active bending sections are far softer than the
+    # insertion tube; values of this order are reported for gastroscopes.
+    active_EI_Nm2: float = 0.004
+    passive_EI_Nm2: float = 0.03
+    linear_density_kg_m: float = 0.1  # ~100 g per metre of insertion tube
+    # Numerical mass scaling of the joints (like SOFA's quasi-static solve):
+    # lets the chain run at the scene timestep without changing statics.
+    joint_armature: float = 2e-5
+    joint_damping: float = 2e-3  # N m s / rad
+    cable_max_tension_n: float = 40.0
+    cable_kp_n_per_m: float = 8000.0  # cable servo stiffness (position control)
+    insertion_kp_n_per_m: float = 2000.0  # stiff insertion servo (a motorised feeder)
+    insertion_damping: float = 25.0  # N s / m, about critical for the carriage
+    insertion_max_force_n: float = 10.0
+    # Withdrawal past the cardia (below -start_depth) is possible: leaving the
+    # stomach is a real failure mode the task penalises.
+    insertion_range_mm: tuple[float, float] = (-30.0, 160.0)
+    # Where the tip starts at insertion 0: this far past the cardia opening.
+    start_depth_mm: float = 20.0
+
+
+@dataclass(frozen=True)
+class Fidelity:
+    """How the stomach's flex degrees of freedom are resolved."""
+
+    name: str
+    dof: str  # MuJoCo flex dof: "trilinear" (reduced order) or "full"
+    cellcount: tuple[int, int, int] = (1, 1, 1)  # trilinear grid cells
+    # The discrete integrator (implicit in stiffness and damping) stays stable
+    # far beyond this on our meshes; 10 ms keeps contact resolution at 1 mm
+    # per step for a 0.1 m/s tip (measured: docs/physics.md).
+    timestep_s: float = 0.01
+    # The discrete integrator solves M + hD + h^2 K iteratively with the same
+    # iteration cap and tolerance as the constraint solver. An under-converged
+    # solve feeds energy in: at 1e-4 the full stomach never came to rest under
+    # a held press (tip 24 mm/s, wall 29 mm/s); at 1e-8 it settles below
+    # 0.4 mm/s (docs/physics.md "Settling"; 1e-7 left up to 0.86 mm/s, too
+    # close to the 1 mm/s bar, for 15-20 % more speed). The fast
+    # stomach settles at 1e-6 (1e-5 leaves 1-6 mm/s; 1e-8 costs 40 % of its
+    # speed). A held press needs 25-50 iterations, contact-rich sweeps
+    # 300-600; a cap of 200 left the M + hD + h^2 K solve under-converged.
+    iterations: int = 1000
+    tolerance: float = 1e-6
+    # Reduced-order stomachs are stiffer than the mesh they interpolate
+    # (locking). This factor on young's modulus was calibrated so that the
+    # periodic load moves the forced vertices as far as in the full model
+    # (docs/physics.md; `make bench` prints the wall motion of each scene).
+    young_scale: float = 1.0
+    # Reduced-order stomachs respond to the point load through their few grid
+    # nodes, not through the wall around the loaded vertices: matching the
+    # contact stiffness (young_scale) leaves the load-driven motion too small.
+    # This gain on the periodic load's actuator calibrates that global mode
+    # separately, so target motion matches the full model too (docs/physics.md).
+    load_gain: float = 1.0
+
+
+FIDELITIES: dict[str, Fidelity] = {
+    # Default: reduced-order stomach, interpolated on a trilinear grid (also
+    # supported by MuJoCo Warp); collision still uses the full mesh.
+    # young_scale and load_gain were calibrated against "full" with
+    # `python -m mjendo.fidelity` (docs/physics.md "Calibration"): press forces
+    # within 1.35x, target motion within 25 %.
+    "fast": Fidelity("fast", "trilinear", (2, 2, 2), young_scale=0.05, load_gain=5.7),
+    # Every mesh vertex is a 3-dof body: the per-vertex FEM stomach.
+    "full": Fidelity("full", "full", (1, 1, 1), tolerance=1e-8),
+}
+
+
+@dataclass(frozen=True)
+class PeriodicLoad:
+    """Square-wave force on the forced vertices (breathing / motility)."""
+
+    f0_n: float = PAPER_F0_N
+    # Half period T (the wave's period is 2T). The paper gives no value;
+    # 2 s gives a 4 s cycle, i.e. 15 breaths per minute.
+    half_period_s: float = 2.0
+    # Diaphragm excursion in breathing is mostly cranio-caudal: push along z.
+    direction: tuple[float, float, float] = (0.0, 0.0, 1.0)
+
+
+@dataclass(frozen=True)
+class Condition:
+    """One of the paper's five task conditions ("environments" FE, SE, DE, UE1, UE2).
+
+    Conditions share their scene: SE, DE, UE1 and UE2 differ only in the
+    periodic load's amplitude, which the Simulator sets when it starts.
+    """
+
+    name: str
+    has_stomach: bool
+    load_multiplier: float  # times f0 (0: no periodic force)
+    target_list: str  # "A" (training) or "B" (held out)
+
+
+CONDITIONS: dict[str, Condition] = {
+    "FE": Condition("FE", False, 0.0, "A"),  # paper: free environment, targets float where the wall would be
+    "SE": Condition("SE", True, 0.0, "A"),  # paper: static stomach
+    "DE": Condition("DE", True, 1.0, "A"),  # paper: dynamic, f0
+    "UE1": Condition("UE1", True, 2.0, "B"),  # paper: unstructured, 2 x f0, unseen targets
+    "UE2": Condition("UE2", True, 3.0, "B"),  # paper: unstructured, 3 x f0, unseen targets
+}
+
+
+@dataclass(frozen=True)
+class SceneConfig:
+    """Everything one scene file is built from: with or without the stomach, at one fidelity."""
+
+    has_stomach: bool
+    fidelity: Fidelity
+    material: Material = field(default_factory=Material)
+    contact: Contact = field(default_factory=Contact)
+    endoscope: Endoscope = field(default_factory=Endoscope)
+    load: PeriodicLoad = field(default_factory=PeriodicLoad)
+    gravity: float = GRAVITY
+
+    def young_pa(self) -> float:
+        """Young's modulus used by this scene's flex (fidelity-calibrated)."""
+        return self.material.young_pa * self.fidelity.young_scale
+
+
+class ConfigError(ValueError):
+    """A configuration value is unknown or physically unusable."""
+
+
+def _pick(table: dict, key: str, what: str):
+    if key not in table:
+        raise ConfigError(f"unknown {what} {key!r}; valid: {', '.join(table)}")
+    return table[key]
+
+
+def condition(env: str) -> Condition:
+    """The task condition of an environment name, or a ConfigError listing the valid ones."""
+    return _pick(CONDITIONS, env, "environment")
+
+
+def fidelity_preset(fidelity: str | Fidelity) -> Fidelity:
+    return fidelity if isinstance(fidelity, Fidelity) else _pick(FIDELITIES, fidelity, "fidelity")
+
+
+def scene_config(env: str = "DE", fidelity: str | Fidelity = "fast", **overrides) -> SceneConfig:
+    """The scene an environment runs in at a fidelity preset (name, or a Fidelity to try one)."""
+    cfg = SceneConfig(has_stomach=condition(env).has_stomach, fidelity=fidelity_preset(fidelity))
+    return replace(cfg, **overrides) if overrides else cfg
+
+
+# --------------------------------------------------------------------------
+# The learning problem (paper's MDP).
+PAPER_ACTION_LIMIT = 0.4  # paper: actions in [-0.4, 0.4]
+ACTION_SIZE = 5  # paper: four cable commands and one axial (insertion) command
+PAPER_SUCCESS_MM = 3.0  # paper: success when the tip is within 3 mm
+PAPER_BONUS = 1e4  # paper: R_S = +1e4 on success, R_B = -1e4 on leaving
+PAPER_EXIT_X_MM = 15.0  # paper: x_EE < 15 mm in its frame means the tip left
+PAPER_TRAIN_STEPS = 128  # paper: training episode length
+PAPER_EVAL_STEPS = 80  # paper: evaluation trial length
+
+
+@dataclass(frozen=True)
+class TaskConfig:
+    """One navigation task: which scene, what the agent sees, how actions scale."""
+
+    env: str = "DE"
+    fidelity: str = "fast"
+    force_obs: bool = True  # contact indicator + resultant force (policies C, E)
+    target_list: str | None = None  # None: the environment's own list (A or B)
+    max_steps: int = PAPER_TRAIN_STEPS
+    # Control period (paper: not given): 30 ms, 33 Hz; 128 steps = 3.84 s,
+    # about one 4 s breathing cycle. Must be a multiple of the timestep.
+    control_period_s: float = 0.03
+    # Action unit -> physical increment per control step (paper: not given).
+    # 0.4 (the limit) moves a cable 1 mm (full bending in ~14 steps) and the
+    # insertion 4 mm per step (133 mm/s): the farthest target of list A
+    # (136 mm along the axis) in 34 of the 80 steps of a trial. At 2 mm/step
+    # it took 68, leaving a moving target no margin (E's far-target failures).
+    cable_mm_per_unit: float = 2.5
+    insertion_mm_per_unit: float = 10.0
+    force_ref_n: float = 1.0  # the observation's force is force / force_ref
+    force_penalty: float = 0.0  # optional safety term: -force_penalty * |F| (N) per step
+    randomize_phase: bool = True  # start each episode at a random phase of the load
+
+
+def _finite(name: str, value, low: float, *, strict: bool) -> None:
+    ok = isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value) \
+        and (value > low if strict else value >= low)
+    if not ok:
+        raise ConfigError(f"{name} must be a finite number {'>' if strict else '>='} {low:g}, not {value!r}")
+
+
+def task_config(**kw) -> TaskConfig:
+    """A TaskConfig with every field checked: names, types and ranges, each error naming the fix."""
+    known = {f.name for f in fields(TaskConfig)}
+    unknown = sorted(set(kw) - known)
+    if unknown:
+        raise ConfigError(f"unknown task argument(s) {', '.join(unknown)}; valid: {', '.join(sorted(known))}")
+    cfg = TaskConfig(**kw)
+    condition(cfg.env)
+    fidelity_preset(cfg.fidelity)
+    for name in ("force_obs", "randomize_phase"):
+        if not isinstance(getattr(cfg, name), bool | np.bool_):
+            raise ConfigError(f"{name} must be True or False, not {getattr(cfg, name)!r}")
+    if cfg.target_list not in (None, "A", "B"):
+        raise ConfigError(f"unknown target_list {cfg.target_list!r}; valid: 'A', 'B' or None")
+    if isinstance(cfg.max_steps, bool) or not isinstance(cfg.max_steps, int | np.integer) or cfg.max_steps < 1:
+        raise ConfigError(f"max_steps must be a whole number >= 1, not {cfg.max_steps!r}")
+    for name in ("control_period_s", "cable_mm_per_unit", "insertion_mm_per_unit", "force_ref_n"):
+        _finite(name, getattr(cfg, name), 0.0, strict=True)
+    _finite("force_penalty", cfg.force_penalty, 0.0, strict=False)
+    cfg = replace(cfg, force_obs=bool(cfg.force_obs), randomize_phase=bool(cfg.randomize_phase),
+                  max_steps=int(cfg.max_steps))
+    substeps(cfg)
+    return cfg
+
+
+def substeps(cfg: TaskConfig) -> int:
+    """Physics steps per control step; the period must be a whole number of them."""
+    dt = FIDELITIES[cfg.fidelity].timestep_s
+    n = round(cfg.control_period_s / dt)
+    if n < 1 or abs(n * dt - cfg.control_period_s) > 1e-9:
+        raise ConfigError(f"control_period_s {cfg.control_period_s} is not a multiple of the {cfg.fidelity} "
+                          f"timestep {dt} s; use e.g. {max(1, n) * dt:g}")
+    return n
+
+
+# --------------------------------------------------------------------------
+# Paper's results (Tables I and II): success rate % and average error mm.
+# The evaluation report prints ours next to these, cell by cell.
+PAPER_RESULTS: dict[str, dict[str, tuple[float, float]]] = {
+    "A": {"FE": (98.3, 0.4), "SE": (26.2, 2.5), "DE": (34.5, 2.2), "UE1": (32.5, 2.2), "UE2": (33.8, 2.5)},
+    "B": {"SE": (98.0, 1.6), "DE": (81.5, 1.7), "UE1": (75.6, 1.8), "UE2": (68.8, 2.1)},
+    "C": {"SE": (100.0, 1.6), "DE": (100.0, 1.6), "UE1": (81.0, 1.9), "UE2": (78.0, 1.8)},
+    "D": {"SE": (91.8, 1.6), "DE": (97.8, 1.6), "UE1": (71.3, 2.1), "UE2": (55.0, 2.0)},
+    "E": {"SE": (100.0, 1.6), "DE": (100.0, 1.6), "UE1": (84.5, 1.9), "UE2": (85.0, 1.9)},
+}

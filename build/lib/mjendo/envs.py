@@ -1,0 +1,136 @@
+"""Gymnasium environments: the navigation task (:mod:`mjendo.task`) behind ``gymnasium.Env``."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import mujoco
+import numpy as np
+
+from mjendo.config import ACTION_SIZE, PAPER_ACTION_LIMIT, ConfigError, task_config
+from mjendo.endoscope import TIP_CAMERA
+from mjendo.task import NavigationTask
+
+CAMERAS = ("external", TIP_CAMERA)
+
+
+class EndoscopeEnv(gym.Env):
+    """Contact-aided navigation of a flexible endoscope to a target on the stomach wall.
+
+    ## Action space
+
+    ``Box(-0.4, 0.4, (5,), float32)``, applied every control period of 30 ms
+    (3 physics steps of 10 ms). Out-of-range values are clipped; NaN raises.
+
+    | index | meaning | unit and scale |
+    |---|---|---|
+    | 0-3 | cables +x, -x, +y, -y of the active segment | change of cable pull, 1 unit = 2.5 mm (0.4: 1 mm per step); positive pulls, negative pays out |
+    | 4 | insertion through the cardia | change of insertion depth, 1 unit = 10 mm (0.4: 4 mm per step) |
+
+    ## Observation space
+
+    ``Box(low, high, (11,) or (15,), float32)``; world frame. The bounds are physical
+    (1 m, 5 m/s, 100 N) and observations are clipped to them.
+
+    | index | observation | unit |
+    |---|---|---|
+    | 0-2 | vector from the tip (EE) to the target | mm |
+    | 3-5 | tip linear velocity | mm/s |
+    | 6-9 | lengths of the 4 cables (+x, -x, +y, -y) over the active segment | mm |
+    | 10 | previous axial (insertion) action | action units |
+    | 11 | contact indicator, force-aware only (``force_obs=True``) | 0 or 1 |
+    | 12-14 | resultant contact force on the endoscope / ``force_ref_n`` (1 N), force-aware only | - |
+
+    ## Rewards (paper)
+
+    | term | value |
+    |---|---|
+    | distance | ``-||P_EE - P_target||`` in mm, every step |
+    | success | ``+1e4`` when the distance is below 3 mm (episode terminates) |
+    | exit | ``-1e4`` when the tip leaves the stomach through the cardia, x_EE < 15 mm (terminates) |
+    | force | ``-force_penalty * |F|`` (N), 0 by default (optional safety term) |
+
+    Episodes are truncated after ``max_steps`` (128 for training, 80 for the
+    paper's evaluation) and when the physics becomes unstable
+    (``info["instability"]`` says why).
+
+    ## Arguments
+
+    | argument | default | meaning |
+    |---|---|---|
+    | ``env`` | set by the id | FE, SE, DE, UE1, UE2 |
+    | ``force_obs`` | True | include contact indicator and force (policies C, E) |
+    | ``fidelity`` | "fast" | "fast" (reduced-order stomach) or "full" (per-vertex FEM) |
+    | ``target_list`` | the env's | "A" (training) or "B" (held out) |
+    | ``max_steps`` | 128 | truncation limit |
+    | ``force_penalty`` | 0.0 | weight of the optional force penalty per newton |
+    | ``render_mode`` | None | "rgb_array" |
+    | ``camera`` | "external" | "external", "tip_camera" or "both" (side by side) |
+    | ``width``, ``height`` | 480, 360 | frame size in pixels (16-4096) |
+    | ``**task`` | | any other TaskConfig field: ``cable_mm_per_unit``, ``insertion_mm_per_unit``, ``control_period_s``, ``force_ref_n`` |
+
+    ``info`` each step: distance_mm, is_success, contact, force_N (3-vector),
+    peak_force_N, target_index, exited, step and the reward terms.
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 40}
+    MAX_FRAME_PIXELS = 4096  # MuJoCo's offscreen buffer is enlarged to the frame; beyond this GPUs refuse
+
+    def __init__(self, env: str = "DE", force_obs: bool = True, fidelity: str = "fast",
+                 target_list: str | None = None, max_steps: int = 128, force_penalty: float = 0.0,
+                 render_mode: str | None = None, camera: str = "external", width: int = 480,
+                 height: int = 360, randomize_phase: bool = True, **task):
+        if render_mode not in (None, "rgb_array"):
+            raise ConfigError(f"unknown render_mode {render_mode!r}; valid: None, 'rgb_array'")
+        if camera not in (*CAMERAS, "both"):
+            raise ConfigError(f"unknown camera {camera!r}; valid: {', '.join((*CAMERAS, 'both'))}")
+        for name, v in (("width", width), ("height", height)):
+            if isinstance(v, bool) or not isinstance(v, int | np.integer) or not 16 <= v <= self.MAX_FRAME_PIXELS:
+                raise ConfigError(f"{name} must be a whole number of pixels in [16, {self.MAX_FRAME_PIXELS}], "
+                                  f"not {v!r}")
+        cfg = task_config(env=env, fidelity=fidelity, force_obs=force_obs, target_list=target_list,
+                          max_steps=max_steps, force_penalty=force_penalty, randomize_phase=randomize_phase, **task)
+        self.task = NavigationTask(cfg)
+        self.render_mode = render_mode
+        self.camera = camera
+        self.width, self.height = int(width), int(height)
+        self._renderer = None
+        self.metadata = {**self.metadata, "render_fps": int(round(1.0 / self.task.control_dt))}
+        self.action_space = gym.spaces.Box(-PAPER_ACTION_LIMIT, PAPER_ACTION_LIMIT, (ACTION_SIZE,), np.float32)
+        self.observation_space = gym.spaces.Box(self.task.obs_low, self.task.obs_high, dtype=np.float32)
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        obs = self.task.reset(self.np_random)
+        if options and "target_index" in options:
+            obs = self.task.set_target(int(options["target_index"]))
+        info = {"target_index": self.task.target, "distance_mm": self.task.distance_mm()}
+        return obs, info
+
+    def step(self, action):
+        r = self.task.step(action)
+        return r.obs, r.reward, r.terminated, r.truncated, r.info
+
+    # -------------------------------------------------------------- render
+    def render(self):
+        if self.render_mode != "rgb_array":
+            return None
+        if self._renderer is None:
+            self._renderer = mujoco.Renderer(self.task.sim.model, self.height, self.width)
+        cams = CAMERAS if self.camera == "both" else (self.camera,)
+        frames = []
+        for cam in cams:
+            self._renderer.update_scene(self.task.sim.data, camera=cam)
+            frames.append(self._renderer.render())
+        return np.concatenate(frames, axis=1)
+
+    def close(self):
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+
+    def __getstate__(self):
+        # The renderer holds OpenGL pointers that cannot be copied or pickled; render() makes a new one.
+        state = self.__dict__.copy()
+        state["_renderer"] = None
+        return state
+

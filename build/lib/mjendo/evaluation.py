@@ -1,0 +1,311 @@
+"""``make eval``: the paper's study measured by mjendo, next to the paper's tables.
+
+Every shipped policy (A-E) and the DLS baseline run N seeded 80-step trials in
+SE and DE (target list A) and UE1, UE2 (list B); policy A also in FE. Trials
+are spread over worker processes. Writes to ``eval/results/``: trials.csv
+(one row per trial), summary.csv, report.md (ours next to the paper's, with
+the command, commit and wall time) and the figures.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import math
+import os
+import subprocess
+import sys
+import time
+from dataclasses import asdict, dataclass
+from multiprocessing import get_context
+from pathlib import Path
+
+import numpy as np
+
+from mjendo import cli, paths, rollout
+from mjendo.artifacts import PolicyError
+from mjendo.config import PAPER_EVAL_STEPS, PAPER_RESULTS, PAPER_SUCCESS_MM, ConfigError
+from mjendo.units import to_mm
+
+COMMITTED = paths.DATA / "eval" / "results"  # the committed study (written only with --out eval/results)
+CONTROLLERS = ("A", "B", "C", "D", "E", "baseline")
+
+
+def default_out(fidelity: str) -> Path:
+    """Untracked by default (runs/ is ignored): a quick `make eval TRIALS=10` never touches the committed study."""
+    return paths.RUNS / "eval" / fidelity
+
+
+def _trained_in_fe(controller: str) -> bool:
+    if controller == "A":
+        return True
+    if controller in CONTROLLERS:
+        return False
+    from mjendo import artifacts
+
+    return artifacts.read_meta(artifacts.resolve(controller)).get("task", {}).get("env") == "FE"
+
+
+def cells(controllers=CONTROLLERS) -> list[tuple[str, str]]:
+    """(controller, environment) pairs of the study: SE, DE, UE1, UE2, and FE for policies trained there."""
+    out = []
+    for c in controllers:
+        out += [(c, "FE")] if _trained_in_fe(c) else []
+        out += [(c, e) for e in ("SE", "DE", "UE1", "UE2")]
+    return out
+
+
+def check_controllers(controllers) -> None:
+    """Letters, baseline, or policy folders; anything else is refused before any work starts."""
+    from mjendo import artifacts
+
+    for c in controllers:
+        if c not in CONTROLLERS and not (Path(c).is_dir() or Path(c).suffix == ".zip"):
+            raise ConfigError(f"unknown policy {c!r}; valid: {', '.join(CONTROLLERS)}, or a policy folder "
+                              "with model.zip (e.g. runs/E/seed0)")
+        if c not in CONTROLLERS and not (artifacts.resolve(c) / artifacts.MODEL_FILE).exists():
+            raise ConfigError(f"{c} holds no {artifacts.MODEL_FILE}: pass a finished run or policy folder")
+
+
+def guard_overwrite(out: Path, trials: int, overwrite: bool) -> None:
+    """Refuse to replace a report made with more trials per cell (e.g. the committed 200-trial study)."""
+    summary = out / "summary.csv"
+    if overwrite or not summary.exists():
+        return
+    with open(summary) as f:
+        before = max((int(r["trials"]) for r in csv.DictReader(f) if r.get("trials", "").isdigit()), default=0)
+    if before > trials:
+        raise ConfigError(f"{out} holds a report made with {before} trials per cell; this run has {trials}. "
+                          "Write elsewhere with --out, or pass --overwrite to replace it")
+
+
+@dataclass
+class Trial:
+    controller: str
+    env: str
+    trial: int
+    seed: int
+    target: int
+    success: bool
+    final_mm: float
+    steps: int
+    steps_to_success: float
+    exited: bool
+    mean_force_n: float
+    peak_force_n: float
+    first_contact_step: float
+    error: str = ""
+
+
+def trial_records(env, ctrl, name: str, seeds: list[int], keep_paths: bool = False) -> tuple[list, list]:
+    """Seeded trials of a controller in an env (its max_steps is the trial length); per-trial records and paths."""
+    trials, paths = [], []
+    for i, seed in enumerate(seeds):
+        forces, tips, dists, contact_step, contact_pos = [], [], [], math.nan, None
+        for s in rollout.episode(env, ctrl, seed=seed):
+            if s.index == 0:
+                continue
+            info = s.info
+            forces.append(float(np.linalg.norm(info["force_N"])))
+            dists.append(info["distance_mm"])
+            tip = to_mm(env.task.sim.tip_pos())
+            if keep_paths:
+                tips.append(tip)
+            if info["contact"] and math.isnan(contact_step):
+                contact_step, contact_pos = s.index, tip
+        ok, k = bool(info["is_success"]), s.index
+        trials.append(Trial(name, env.task.cfg.env, i, seed, info["target_index"], ok, info["distance_mm"], k,
+                            float(k) if ok else math.nan, bool(info["exited"]), float(np.mean(forces)),
+                            float(np.max(forces)), contact_step))
+        if keep_paths:
+            paths.append({"target": info["target_index"], "tip_mm": np.array(tips), "force_n": np.array(forces),
+                          "distance_mm": np.array(dists), "contact_mm": contact_pos, "success": ok})
+    return trials, paths
+
+
+def run_trials(controller: str, env_name: str, seeds: list[int], keep_paths: bool = False,
+               fidelity: str = "fast") -> tuple[list, list]:
+    """Run trials of one cell; a broken policy marks every trial with its error instead of raising."""
+    from mjendo.envs import EndoscopeEnv
+    from mjendo.policies import force_obs_of, load_controller
+
+    try:
+        env = EndoscopeEnv(env_name, force_obs=force_obs_of(controller), max_steps=PAPER_EVAL_STEPS,
+                           fidelity=fidelity)
+        ctrl = load_controller(controller, env.task)
+    except Exception as exc:  # reported per cell, the other cells still run
+        msg = f"{type(exc).__name__}: {exc}".replace("\n", " ")
+        nan = float("nan")
+        return [Trial(controller, env_name, i, s, -1, False, nan, 0, nan, False, nan, nan, nan, msg)
+                for i, s in enumerate(seeds)], []
+    return trial_records(env, ctrl, controller, seeds, keep_paths)
+
+
+def _job(args):
+    controller, env_name, seeds, keep, fidelity = args
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+    import torch
+
+    torch.set_num_threads(1)
+    return run_trials(controller, env_name, seeds, keep, fidelity)
+
+
+def wilson(successes: int, n: int, z: float = 1.96) -> tuple[float, float]:
+    """95 % Wilson interval of a success rate (fractions)."""
+    if n == 0:
+        return math.nan, math.nan
+    p = successes / n
+    den = 1 + z * z / n
+    centre = (p + z * z / (2 * n)) / den
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / den
+    return centre - half, centre + half
+
+
+def summarize(trials: list[Trial]) -> list[dict]:
+    """Per cell: SR with CI, AE over successful and over all trials, forces, steps to success."""
+    rows = []
+    for key in dict.fromkeys((t.controller, t.env) for t in trials):
+        ts = [t for t in trials if (t.controller, t.env) == key]
+        err = next((t.error for t in ts if t.error), "")
+        n, s = len(ts), sum(t.success for t in ts)
+        lo, hi = wilson(s, n) if not err else (math.nan, math.nan)
+        ok = [t for t in ts if t.success]
+
+        def mean(xs):
+            xs = [x for x in xs if not math.isnan(x)]
+            return float(np.mean(xs)) if xs else math.nan
+
+        paper = PAPER_RESULTS.get(key[0], {}).get(key[1], (math.nan, math.nan))
+        rows.append({
+            "controller": key[0], "env": key[1], "trials": n,
+            "success_rate": math.nan if err else 100.0 * s / n, "sr_ci_low": 100 * lo, "sr_ci_high": 100 * hi,
+            "ae_success_mm": mean([t.final_mm for t in ok]), "ae_all_mm": mean([t.final_mm for t in ts]),
+            "mean_force_n": mean([t.mean_force_n for t in ts]), "peak_force_n": mean([t.peak_force_n for t in ts]),
+            "max_peak_force_n": max((t.peak_force_n for t in ts), default=math.nan),
+            "steps_to_success": mean([t.steps_to_success for t in ok]),
+            "exits": sum(t.exited for t in ts),
+            "paper_sr": paper[0], "paper_ae": paper[1], "error": err,
+        })
+    return rows
+
+
+def _fmt(x, nd=1):
+    return "-" if x is None or (isinstance(x, float) and math.isnan(x)) else f"{x:.{nd}f}"
+
+
+def _git_commit() -> str:
+    try:
+        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=paths.DATA, capture_output=True, text=True,
+                              check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+
+
+def write_report(rows: list[dict], out: Path, command: str, wall_s: float, n: int, fidelity: str = "fast",
+                 made: list | None = None) -> Path:
+    """report.md: ours next to the paper's tables, then every figure embedded with its caption."""
+    stomach = {"fast": "the fast (reduced-order, calibrated) stomach", "full": "the full per-vertex FEM stomach"}
+    lines = [
+        "# mjendo evaluation vs the paper",
+        "",
+        f"Stomach: {stomach[fidelity]} (`fidelity={fidelity}`).  ",
+        f"Command: `{command}`  ",
+        f"Commit: `{_git_commit()}`, wall time {wall_s / 60:.1f} min, {n} trials per cell, 80 steps each "
+        f"(success: final tip error < {PAPER_SUCCESS_MM:g} mm).",
+        "",
+        "SR: success rate % (95 % Wilson interval). AE: average final error in mm over the *successful* "
+        "trials (the paper's AE), and over all trials. Forces: mean over trials of the per-trial mean and "
+        "peak resultant contact force.",
+        "",
+        "| policy | env | SR % (CI) | paper SR % | AE succ. mm | paper AE mm | AE all mm | mean F N | peak F N | "
+        "steps to success | exits |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        if r["error"]:
+            lines.append(f"| {r['controller']} | {r['env']} | FAILED: {r['error'][:120]} |  |  |  |  |  |  |  |  |")
+            continue
+        lines.append(
+            f"| {r['controller']} | {r['env']} | {_fmt(r['success_rate'])} ({_fmt(r['sr_ci_low'], 0)}-"
+            f"{_fmt(r['sr_ci_high'], 0)}) | {_fmt(r['paper_sr'])} | {_fmt(r['ae_success_mm'], 2)} | "
+            f"{_fmt(r['paper_ae'])} | {_fmt(r['ae_all_mm'], 1)} | {_fmt(r['mean_force_n'], 2)} | "
+            f"{_fmt(r['peak_force_n'], 2)} | {_fmt(r['steps_to_success'], 1)} | {r['exits']} |")
+    if made:
+        lines += ["", "## Figures", ""]
+        for fig, text in made:
+            lines += [f"![{text}]({Path(fig).name})", "", f"*{text}*", ""]
+    path = out / "report.md"
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def _write_csv(path: Path, rows: list[dict]) -> None:
+    with open(path, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+
+
+def evaluate(trials: int = 200, controllers=CONTROLLERS, workers: int = 2, out: Path | None = None, seed: int = 0,
+             command: str = "make eval", fidelity: str = "fast", envs: tuple[str, ...] | None = None,
+             overwrite: bool = False) -> dict:
+    from tqdm import tqdm
+
+    if trials < 1 or workers < 1 or seed < 0:
+        raise ConfigError(f"--trials and --workers must be >= 1 and --seed >= 0 (got {trials}, {workers}, {seed})")
+    check_controllers(controllers)
+    out = Path(out) if out is not None else default_out(fidelity)
+    guard_overwrite(out, trials, overwrite)
+    out.mkdir(parents=True, exist_ok=True)
+    chunk = max(1, math.ceil(trials / 4))
+    jobs = []
+    study = [(c, e) for c, e in cells(controllers) if envs is None or e in envs]
+    for c, e in study:
+        seeds = [seed * 100003 + i for i in range(trials)]
+        for j in range(0, trials, chunk):
+            keep = c == "E" and e == "DE" and j == 0
+            jobs.append((c, e, seeds[j:j + chunk], keep, fidelity))
+    t0 = time.time()
+    all_trials, tip_paths = [], []
+    with get_context("spawn").Pool(workers) as pool:
+        for ts, ps in tqdm(pool.imap_unordered(_job, jobs), total=len(jobs), desc="evaluating", unit="chunk"):
+            all_trials += ts
+            tip_paths += ps
+    order = {k: i for i, k in enumerate(study)}
+    all_trials.sort(key=lambda t: (order[(t.controller, t.env)], t.trial))
+    wall = time.time() - t0
+    _write_csv(out / "trials.csv", [asdict(t) for t in all_trials])
+    rows = summarize(all_trials)
+    _write_csv(out / "summary.csv", rows)
+    from mjendo import figures
+
+    made = figures.all_figures(rows, tip_paths, out)
+    report = write_report(rows, out, command, wall, trials, fidelity, made)
+    print(report.read_text())
+    print(f"wrote {out} in {wall / 60:.1f} min")
+    return {"rows": rows, "wall_s": wall}
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m mjendo.evaluation", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--trials", type=int, default=200,
+                    help="trials per cell (200: 95%% CI about +-3 points at 95%% SR, +-7 at 50%%)")
+    ap.add_argument("--policies", default=",".join(CONTROLLERS),
+                    help="comma-separated: A-E (shipped), baseline, or policy/run folders (runs/E/seed0)")
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--fidelity", choices=["fast", "full"], default="fast", help="stomach to evaluate in")
+    ap.add_argument("--envs", help="comma-separated subset of FE, SE, DE, UE1, UE2 (default: all of the study)")
+    ap.add_argument("--out", type=Path, help="results folder (default runs/eval/<fidelity>, untracked; the "
+                    "committed study is eval/results)")
+    ap.add_argument("--overwrite", action="store_true", help="replace a report made with more trials per cell")
+    a = ap.parse_args(argv)
+    command = "python -m mjendo.evaluation " + " ".join(argv if argv is not None else sys.argv[1:])
+    return cli.run(lambda: evaluate(a.trials, tuple(a.policies.split(",")), a.workers, a.out, a.seed, command=command,
+                                    fidelity=a.fidelity, envs=tuple(a.envs.split(",")) if a.envs else None,
+                                    overwrite=a.overwrite), ConfigError, PolicyError)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,241 @@
+"""How close the fast stomach is to the full FEM one: the protocols behind the fidelity figures.
+
+Three measurements, each defined once here and used by ``make bench --only
+fidelity``, the calibration (``python -m mjendo.fidelity calibrate``) and the
+tests:
+
+* **target motion**: peak-to-peak displacement (mm) of every target vertex
+  (lists A and B) over one load cycle, after one cycle of settling, with the
+  scope withdrawn; what a moving target does to the task;
+* **press force**: the resultant contact force (N) on the scope, averaged over
+  the last 0.5 s of a 1 s hold, for fixed commanded presses in the static
+  stomach: end-on into the greater curvature, and the bent tip driven into
+  a side wall by insertion (``PRESSES``);
+* **hold speed**: tip and wall-vertex speeds (mm/s) while a press is held:
+  a damped elastic system under constant load must come to rest.
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+import time
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from mjendo import anatomy, scene
+from mjendo.config import FIDELITIES, Fidelity, StomachShape, scene_config
+from mjendo.sim import Simulator
+from mjendo.units import from_mm, to_mm
+
+
+@dataclass(frozen=True)
+class Press:
+    """A commanded press: bend first (cable pull), then insert to a fixed depth, hold."""
+
+    name: str
+    insertion_mm: float  # commanded insertion after the bend
+    cable: int | None = None  # which cable is pulled (None: straight scope)
+    pull_mm: float = 8.0  # ~80 degrees of bend
+    pre_insertion_mm: float = 0.0  # insertion while bending, before the press
+
+
+# Straight insertion first touches the greater curvature at about 125 mm;
+# the bent presses bend at 80 mm and then push the bent tip 40 mm further.
+PRESSES = (
+    Press("end-on 140 mm", 140.0),
+    Press("end-on 155 mm", 155.0),
+    Press("bent +x, 80->120 mm", 120.0, cable=0, pre_insertion_mm=80.0),
+    Press("bent +y, 80->120 mm", 120.0, cable=2, pre_insertion_mm=80.0),
+    Press("bent -y, 80->120 mm", 120.0, cable=3, pre_insertion_mm=80.0),
+)
+HOLD_S = 1.0
+
+
+def simulator(env: str, fidelity: str | Fidelity, stomach_dir: Path | None = None) -> Simulator:
+    """A Simulator on the committed scene, or on a variant (preset or stomach) built in a temporary file."""
+    if isinstance(fidelity, str) and stomach_dir is None:
+        return Simulator(env, fidelity)
+    fid = scene_config(env, fidelity).fidelity
+    directory = stomach_dir or anatomy.STOMACH_DIR
+    path = Path(tempfile.mkdtemp(prefix="mjendo-")) / f"{env}_{fid.name}.xml"
+    path.write_text(scene.build_spec(scene_config(env, fid), anatomy.load(directory), directory).to_xml())
+    return Simulator(env, "full" if fid.dof == "full" else "fast", path=path)
+
+
+def _run(sim: Simulator, seconds: float, pulls: np.ndarray, insertion: float) -> None:
+    sim.set_controls(pulls, insertion)
+    sim.step(int(round(seconds / sim.model.opt.timestep)))
+
+
+def _ramp(sim: Simulator, seconds: float, pulls0, pulls1, ins0: float, ins1: float) -> None:
+    n = int(round(seconds / sim.model.opt.timestep))
+    for k in range(1, n + 1):
+        f = k / n
+        sim.set_controls(pulls0 + f * (pulls1 - pulls0), ins0 + f * (ins1 - ins0))
+        sim.step(1)
+
+
+def press(sim: Simulator, p: Press) -> None:
+    """Settle 0.5 s, bend and pre-insert over 0.5 s, insert to the press depth over 0.5 s."""
+    sim.reset()
+    zero = np.zeros(4)
+    _run(sim, 0.5, zero, 0.0)
+    pulls = zero.copy()
+    if p.cable is not None:
+        pulls[p.cable] = from_mm(p.pull_mm)
+    _ramp(sim, 0.5, zero, pulls, 0.0, from_mm(p.pre_insertion_mm))
+    _ramp(sim, 0.5, pulls, pulls, from_mm(p.pre_insertion_mm), from_mm(p.insertion_mm))
+
+
+def press_force(sim: Simulator, p: Press, hold_s: float = HOLD_S) -> float:
+    """Mean resultant contact force (N) over the last 0.5 s of the hold."""
+    press(sim, p)
+    dt = sim.model.opt.timestep
+    sim.step(int(round((hold_s - 0.5) / dt)))
+    forces = []
+    for _ in range(int(round(0.5 / dt))):
+        sim.step(1)
+        forces.append(float(np.linalg.norm(sim.contact().force)))
+    return float(np.mean(forces))
+
+
+def hold_speeds(sim: Simulator, p: Press, hold_s: float = 2.0, window_s: float = 0.5) -> tuple[float, float]:
+    """Tip speed and fastest wall-vertex speed (mm/s), averaged over a window after ``hold_s`` of hold.
+
+    Averaging displacement over a window measures drift and chatter alike,
+    and not the single-step jitter of a converged solve.
+    """
+    press(sim, p)
+    dt = sim.model.opt.timestep
+    sim.step(int(round(hold_s / dt)))
+    tip0, wall0 = sim.tip_pos(), sim.vertices()
+    sim.step(int(round(window_s / dt)))
+    tip = to_mm(np.linalg.norm(sim.tip_pos() - tip0)) / window_s
+    wall = to_mm(np.linalg.norm(sim.vertices() - wall0, axis=1).max()) / window_s
+    return float(tip), float(wall)
+
+
+def target_motion(sim: Simulator, targets: list[int]) -> np.ndarray:
+    """Peak-to-peak displacement (mm) of each target over the second load cycle, scope withdrawn."""
+    sim.reset()
+    sim.set_controls(np.zeros(4), sim.insertion_range[0])
+    cycle = 2 * sim.half_period
+    sim.step(int(round(cycle / sim.model.opt.timestep)))
+    lo = hi = sim.vertices(targets)
+    for _ in range(int(round(cycle / sim.model.opt.timestep))):
+        sim.step(1)
+        x = sim.vertices(targets)
+        lo, hi = np.minimum(lo, x), np.maximum(hi, x)
+    return to_mm(np.linalg.norm(hi - lo, axis=1))
+
+
+def all_targets(stomach_dir: Path | None = None) -> list[int]:
+    st = anatomy.load(stomach_dir or anatomy.STOMACH_DIR)
+    return sorted(st.targets_a + st.targets_b)
+
+
+def motion_summary(env: str, fidelity: str | Fidelity, stomach_dir: Path | None = None) -> dict:
+    p2p = target_motion(simulator(env, fidelity, stomach_dir), all_targets(stomach_dir))
+    return {"median_mm": float(np.median(p2p)), "max_mm": float(np.max(p2p))}
+
+
+def force_summary(fidelity: str | Fidelity, stomach_dir: Path | None = None) -> dict[str, float]:
+    sim = simulator("SE", fidelity, stomach_dir)
+    return {p.name: press_force(sim, p) for p in PRESSES}
+
+
+def compare(candidate: str | Fidelity, reference: str = "full") -> dict:
+    """Ratios candidate / reference for every fidelity figure (target motion median, max; press forces)."""
+    out = {}
+    for env in ("DE", "UE1", "UE2"):
+        a, b = motion_summary(env, candidate), motion_summary(env, reference)
+        out[f"{env} motion median"] = a["median_mm"] / b["median_mm"]
+        out[f"{env} motion max"] = a["max_mm"] / b["max_mm"]
+    fa, fb = force_summary(candidate), force_summary(reference)
+    for k in fa:
+        out[f"force {k}"] = fa[k] / fb[k] if fb[k] > 0 else float("nan")
+    return out
+
+
+# Discretisation study of the FEM stomach itself: the model of record has one tet
+# layer through the 5 mm wall and 12 vertices round each ring, rings about 20 mm apart.
+REFINEMENTS = {
+    "2 layers": StomachShape(wall_layers=2),
+    "2 layers, half edges": StomachShape(wall_layers=2, n_around=24, ring_spacing_mm=10.0),
+}
+
+
+def refined_stomach(shape: StomachShape, directory: Path) -> Path:
+    """Build a finer stomach and carry the model of record's vertex sets over to it by position.
+
+    Fixed, forced and target vertices are the nearest vertices of the same kind
+    (outer wall or lumen) to the committed ones, so both meshes are pinned,
+    loaded and judged at the same places.
+    """
+    base = anatomy.load()
+    fine = anatomy.build(shape)
+    p, inner = fine.mesh.points, fine.mesh.inner
+
+    def nearest(ids: list[int], lumen: bool) -> list[int]:
+        pool = np.flatnonzero(inner == lumen)
+        return [int(pool[np.argmin(np.linalg.norm(p[pool] - base.mesh.points[i], axis=1))]) for i in ids]
+
+    fine.fixed, fine.forced = nearest(base.fixed, False), nearest(base.forced, False)
+    fine.targets_a, fine.targets_b = nearest(base.targets_a, True), nearest(base.targets_b, True)
+    anatomy.save(fine, directory)
+    return directory
+
+
+def physics_rate(sim: Simulator, seconds: float = 1.0) -> float:
+    """Physics steps per second while the scope presses end-on (contact-rich)."""
+    press(sim, PRESSES[1])
+    n = int(round(seconds / sim.model.opt.timestep))
+    t0 = time.perf_counter()
+    sim.step(n)
+    return n / (time.perf_counter() - t0)
+
+
+def refinement_study() -> None:
+    """Print target motion, press forces and speed of refined full stomachs next to today's."""
+    rows: dict[str, Path | None] = {"model of record": None}
+    tmp = Path(tempfile.mkdtemp(prefix="mjendo-refined-"))
+    for k, (name, shape) in enumerate(REFINEMENTS.items()):
+        rows[name] = refined_stomach(shape, tmp / str(k))
+    for name, d in rows.items():
+        st = anatomy.load(d or anatomy.STOMACH_DIR)
+        sim = simulator("SE", "full", d)
+        rate = physics_rate(sim)
+        print(f"\n{name}: {len(st.mesh.points)} vertices, {len(st.mesh.tets)} tets, {sim.model.nv} dofs, "
+              f"{rate:.0f} physics steps/s ({rate * sim.model.opt.timestep:.2f}x realtime)", flush=True)
+        for env in ("DE", "UE1", "UE2"):
+            m = motion_summary(env, "full", d)
+            print(f"  {env} target motion p2p median/max {m['median_mm']:.1f}/{m['max_mm']:.1f} mm", flush=True)
+        for press_name, f in force_summary("full", d).items():
+            print(f"  press {press_name}: {f:.3f} N", flush=True)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m mjendo.fidelity", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    c = sub.add_parser("compare", help="ratios of a candidate fast stomach's figures to the full one's")
+    c.add_argument("--cells", type=int, nargs=3, help="trilinear cell counts of the candidate")
+    c.add_argument("--young-scale", type=float, help="young's modulus factor of the candidate")
+    c.add_argument("--load-gain", type=float, help="gain on the periodic load of the candidate")
+    sub.add_parser("refine", help="discretisation study: the full stomach on finer meshes")
+    args = ap.parse_args(argv)
+    if args.cmd == "refine":
+        refinement_study()
+        return 0
+    changes = {k: v for k, v in (("cellcount", tuple(args.cells) if args.cells else None),
+                                 ("young_scale", args.young_scale), ("load_gain", args.load_gain)) if v}
+    for k, v in compare(replace(FIDELITIES["fast"], name="candidate", **changes)).items():
+        print(f"{k:<40}{v:8.2f}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

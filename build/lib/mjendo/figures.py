@@ -1,0 +1,203 @@
+"""Figures: training curves, tip trajectories, force and distance profiles, success rates with intervals.
+
+Each figure function writes a PNG and returns its path; ``all_figures``
+returns (path, caption) pairs that the evaluation report embeds.
+"""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import numpy as np
+
+from mjendo.units import to_mm
+
+MIN_RUNS_FOR_SMOOTH_MEAN = 20  # below this a spline through the mean says more than the runs do
+
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _read(path: Path) -> dict[str, np.ndarray]:
+    if not path.exists():
+        return {}
+    with open(path) as f:
+        rows = list(csv.DictReader(f))
+    if not rows:
+        return {}
+    return {k: np.array([float(r[k]) for r in rows]) for k in rows[0]}
+
+
+def _smooth(y: np.ndarray, n: int = 50) -> np.ndarray:
+    if len(y) < 2:
+        return y
+    n = max(1, min(n, len(y) // 5 or 1))
+    c = np.cumsum(np.insert(y, 0, 0.0))
+    out = (c[n:] - c[:-n]) / n
+    return np.concatenate([np.full(n - 1, np.nan), out])
+
+
+def training_curve(run: Path | list[Path], out: Path, labels: list[str] | None = None) -> Path:
+    """Per run, one row of panels: episode reward (moving mean) and success rate vs timesteps."""
+    plt = _plt()
+    runs = [run] if isinstance(run, Path) else list(run)
+    labels = labels or [r.parent.name if r.name.startswith("seed") else r.name for r in runs]
+    fig, axes = plt.subplots(len(runs), 2, figsize=(11, 2.6 * len(runs) + 0.6), squeeze=False, sharex="col")
+    for (ax1, ax2), r, lab in zip(axes, runs, labels, strict=True):
+        ep, ev = _read(Path(r) / "episodes.csv"), _read(Path(r) / "evaluations.csv")
+        if ep:
+            ax1.plot(ep["timesteps"], _smooth(ep["reward"]), color="C0")
+            ax2.plot(ep["timesteps"], _smooth(ep["success"]), color="C0", alpha=0.6, label="training episodes")
+        if ev:
+            ax2.plot(ev["timesteps"], ev["success_rate"], "o-", color="C3", ms=3, label="evaluation (80 steps)")
+        ax1.set(ylabel="episode reward", title=f"{lab}: training reward (moving mean of 50 episodes)")
+        ax2.set(ylabel="success rate", ylim=(-0.02, 1.02), title=f"{lab}: success (< 3 mm)")
+        for ax in (ax1, ax2):
+            ax.grid(alpha=0.3)
+        ax2.legend(fontsize=7, loc="lower right")
+    for ax in axes[-1]:
+        ax.set_xlabel("timesteps")
+    fig.tight_layout()
+    Path(out).parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+    return Path(out)
+
+
+def trajectories(paths: list[dict], out: Path, title: str = "Policy E in DE") -> Path:
+    """Tip paths in the dynamic stomach (frontal x-z plane), coloured by target, first contact marked."""
+    from mjendo import anatomy
+
+    plt = _plt()
+    st = anatomy.load()
+    wall = to_mm(st.mesh.points[st.mesh.inner])
+    fig, ax = plt.subplots(figsize=(6, 7))
+    ax.scatter(wall[:, 0], wall[:, 2], s=4, c="0.8", label="stomach wall (rest)")
+    targets = sorted({p["target"] for p in paths})
+    cmap = plt.get_cmap("tab20")
+    for p in paths:
+        c = cmap(targets.index(p["target"]) % 20)
+        tip = p["tip_mm"]
+        ax.plot(tip[:, 0], tip[:, 2], color=c, lw=1.2, alpha=0.9)
+        ax.plot(*to_mm(st.mesh.points[p["target"]][[0, 2]]), "o", color=c, ms=6, mec="k")
+        if p["contact_mm"] is not None:
+            ax.plot(p["contact_mm"][0], p["contact_mm"][2], "x", color="k", ms=7, mew=1.5)
+    ax.plot([], [], "x", color="k", label="first wall contact")
+    ax.plot([], [], "o", color="0.5", mec="k", label="target (rest position)")
+    ax.set(xlabel="x (mm)", ylabel="z (mm)", title=f"{title}: tip trajectories by target ({len(paths)} trials)",
+           aspect="equal")
+    ax.legend(fontsize=8, loc="lower left")
+    fig.tight_layout()
+    fig.savefig(out, dpi=120)
+    plt.close(fig)
+    return out
+
+
+def force_distance(paths: list[dict], out: Path, title: str = "Policy E in DE") -> Path:
+    """Normalised contact force and distance along trajectories: every run faint, the mean bold.
+
+    The mean is spline-smoothed only from MIN_RUNS_FOR_SMOOTH_MEAN runs on, and kept
+    inside the runs' envelope; with fewer runs the plain mean is drawn.
+    """
+    from scipy.interpolate import UnivariateSpline
+
+    plt = _plt()
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    grid = np.linspace(0, 1, 101)
+    for ax, key, what, colour in ((axes[0], "force_n", "normalised contact force", "C0"),
+                                  (axes[1], "distance_mm", "normalised distance to target", "C3")):
+        curves = []
+        for p in paths:
+            y = np.asarray(p[key], float)
+            if len(y) < 2 or y.max() <= 0:
+                continue
+            y = y / y.max()
+            x = np.linspace(0, 1, len(y))
+            ax.plot(x, y, color=colour, alpha=0.15, lw=0.8)
+            curves.append(np.interp(grid, x, y))
+        if curves:
+            curves = np.array(curves)
+            mean = curves.mean(axis=0)
+            if len(curves) >= MIN_RUNS_FOR_SMOOTH_MEAN:
+                mean = np.clip(UnivariateSpline(grid, mean, s=len(grid) * 0.002)(grid), curves.min(0), curves.max(0))
+                label = f"mean of {len(curves)} runs (spline-smoothed)"
+            else:
+                label = f"mean of {len(curves)} runs"
+            ax.plot(grid, mean, color="k", lw=2.5, label=label)
+            ax.legend(fontsize=8)
+        ax.set(xlabel="normalised time along the trajectory", ylabel=what, ylim=(-0.02, 1.05),
+               title=f"{title}: {what}")
+        ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(out, dpi=120)
+    plt.close(fig)
+    return out
+
+
+def success_bars(rows: list[dict], out: Path) -> Path:
+    """Success rate per environment and controller with 95 % intervals; the paper's values as hatched outlines."""
+    from matplotlib.patches import Patch
+
+    plt = _plt()
+    envs = ["FE", "SE", "DE", "UE1", "UE2"]
+    ctrls = list(dict.fromkeys(r["controller"] for r in rows))
+    fig, ax = plt.subplots(figsize=(12, 4.2))
+    w = 0.8 / max(len(ctrls), 1)
+    handles = []
+    for i, c in enumerate(ctrls):
+        colour = f"C{i}"
+        handles.append(Patch(color=colour, label=str(c)))
+        for j, e in enumerate(envs):
+            r = next((r for r in rows if r["controller"] == c and r["env"] == e), None)
+            if r is None or np.isnan(r["success_rate"]):
+                continue
+            x = j + (i - len(ctrls) / 2 + 0.5) * w
+            sr = r["success_rate"]
+            err = [[max(sr - r["sr_ci_low"], 0)], [max(r["sr_ci_high"] - sr, 0)]]
+            ax.bar(x, sr, w * 0.9, color=colour, yerr=err, ecolor="k", capsize=2, error_kw={"lw": 0.8})
+            if not np.isnan(r["paper_sr"]):
+                ax.bar(x, r["paper_sr"], w * 0.9, fill=False, hatch="//", edgecolor="k", lw=0.6)
+    handles.append(Patch(facecolor="none", edgecolor="k", hatch="//", label="paper"))
+    ax.set_xticks(range(len(envs)), envs)
+    ax.set(xlabel="environment (FE free, SE static, DE dynamic, UE1/UE2 unseen targets, 2x/3x load)",
+           ylabel="success rate % (95 % CI)", ylim=(0, 105),
+           title="Success rate per environment (80-step trials, final error < 3 mm)")
+    ax.legend(handles=handles, fontsize=8, loc="upper left", bbox_to_anchor=(1.005, 1.0), title="policy")
+    ax.grid(axis="y", alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(out, dpi=120)
+    plt.close(fig)
+    return out
+
+
+def all_figures(rows: list[dict], paths: list[dict], out: Path) -> list[tuple[Path, str]]:
+    """Every figure of the evaluation report into ``out``, each with the caption the report shows."""
+    from mjendo.paths import policies_dir
+
+    made = [(success_bars(rows, out / "success_rates.png"),
+             "Success rate of each policy in each environment (bars, with 95 % Wilson intervals) next to the "
+             "paper's (hatched outlines).")]
+    if paths:
+        made += [(trajectories(paths, out / "trajectories_E_DE.png"),
+                  f"Tip trajectories of policy E in the dynamic stomach (DE), {len(paths)} trials, coloured by "
+                  "target; crosses mark the first wall contact."),
+                 (force_distance(paths, out / "force_distance_E_DE.png"),
+                  "Policy E in DE: contact-force magnitude and distance to the target along each trajectory, "
+                  "each normalised by its maximum; faint lines are trials, the bold line their mean.")]
+    shipped = {p: policies_dir() / p for p in "ABCDE" if (policies_dir() / p / "episodes.csv").exists()}
+    if "A" in shipped:
+        made.append((training_curve(shipped["A"], out / "training_A.png", ["A (FE)"]),
+                     "Training of shipped policy A in the free environment: episode reward and success rate."))
+    rest = [p for p in "BCDE" if p in shipped]
+    if rest:
+        made.append((training_curve([shipped[p] for p in rest], out / "training_B-E.png", rest),
+                     "Training of shipped policies " + ", ".join(rest) + ": one row per policy, episode reward "
+                     "and success rate of training episodes and periodic 80-step evaluations."))
+    return made

@@ -1,0 +1,32 @@
+"""Where mjendo's files are: the checkout's folders, or their copies inside an installed wheel.
+
+The committed data lives at the top of the checkout (``models/``,
+``train/policies.yaml``); a wheel carries the same files as
+``mjendo/_data/`` (setup.py). Everything that reads or writes them asks
+this module, so an installed mjendo finds its scenes, stomach, targets and
+shipped policies wherever it is run from. Outputs (runs, evaluations) go
+under the checkout when there is one, else under the working directory.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+PACKAGE = Path(__file__).resolve().parent
+_CHECKOUT = PACKAGE.parent
+IN_CHECKOUT = (_CHECKOUT / "pyproject.toml").exists() and (_CHECKOUT / "models").is_dir()
+DATA = _CHECKOUT if IN_CHECKOUT else PACKAGE / "_data"
+
+MODELS = DATA / "models"
+STOMACH_DIR = MODELS / "stomach"
+SCENES_DIR = MODELS / "scenes"
+TRAINING_CONFIG = DATA / "train" / "policies.yaml"
+# Outputs: the checkout (runs/ is ignored by git), or wherever an installed mjendo is run.
+WORK = _CHECKOUT if IN_CHECKOUT else Path.cwd()
+RUNS = WORK / "runs"
+
+
+def policies_dir() -> Path:
+    """Shipped policies; the environment variable MJENDO_POLICIES points evaluation and viewer elsewhere."""
+    return Path(os.environ.get("MJENDO_POLICIES", MODELS / "policies"))

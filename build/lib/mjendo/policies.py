@@ -1,0 +1,109 @@
+"""Controllers that act in the task: trained PPO policies, the DLS baseline, random.
+
+Every controller has ``reset(task)`` and ``act(obs, task) -> action`` so the
+evaluation, the viewer and training's periodic evaluation treat them alike
+(:mod:`mjendo.rollout` runs them). Policy folders are read by
+:mod:`mjendo.artifacts`.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from mjendo import artifacts
+from mjendo.artifacts import PolicyError
+from mjendo.config import ACTION_SIZE, PAPER_ACTION_LIMIT, ConfigError
+from mjendo.task import ACTION_SCALE_FIELDS, NavigationTask, obs_size
+
+__all__ = ["PPOController", "PolicyError", "RandomController", "force_obs_of", "load_controller"]
+
+
+class PPOController:
+    """A trained stable-baselines3 PPO policy with its observation normalisation."""
+
+    def __init__(self, policy: artifacts.Policy):
+        self.policy = policy
+        self.model = policy.model
+        self.meta = policy.meta
+        self.name = policy.name
+        self.n_obs = policy.n_obs
+
+    @classmethod
+    def from_folder(cls, directory: Path) -> PPOController:
+        return cls(artifacts.load(directory))
+
+    @classmethod
+    def from_training(cls, model, venv, meta: dict) -> PPOController:
+        """The policy being trained, with the training env's current normalisation (periodic evaluation)."""
+        rms = getattr(venv, "obs_rms", None)
+        return cls(artifacts.Policy(Path("."), model, rms, float(getattr(venv, "clip_obs", 10.0)),
+                                    float(getattr(venv, "epsilon", 1e-8)), meta))
+
+    def check(self, task: NavigationTask) -> None:
+        """Refuse a task whose observation or action meaning differs from the one the policy trained in."""
+        if self.n_obs != obs_size(task.cfg.force_obs):
+            raise PolicyError(f"policy {self.name} expects {self.n_obs} observations but the task gives "
+                              f"{obs_size(task.cfg.force_obs)}: use force_obs={self.n_obs == obs_size(True)}")
+        trained = artifacts.trained_task(self.meta)
+        diff = [f"{k} {trained[k]} (task: {getattr(task.cfg, k)})" for k in ACTION_SCALE_FIELDS
+                if k in trained and float(trained[k]) != float(getattr(task.cfg, k))]
+        if diff:
+            raise PolicyError(f"policy {self.name} was trained with other action scales: {', '.join(diff)}; "
+                              "retrain it with `make train` or build the task with the policy's values")
+
+    def reset(self, task: NavigationTask) -> None:
+        self.check(task)
+
+    def normalize(self, obs: np.ndarray) -> np.ndarray:
+        """What SB3's VecNormalize.normalize_obs does with the same statistics (tested against it)."""
+        p = self.policy
+        if p.obs_rms is None:
+            return obs
+        o = (obs - p.obs_rms.mean) / np.sqrt(p.obs_rms.var + p.epsilon)
+        return np.clip(o, -p.clip_obs, p.clip_obs).astype(np.float32)
+
+    def act(self, obs, task: NavigationTask) -> np.ndarray:
+        action, _ = self.model.predict(self.normalize(np.asarray(obs, np.float32)), deterministic=True)
+        return action
+
+
+class RandomController:
+    name = "random"
+
+    def __init__(self, seed: int = 0):
+        self.rng = np.random.default_rng(seed)
+
+    def reset(self, task: NavigationTask) -> None:
+        pass
+
+    def act(self, obs, task: NavigationTask) -> np.ndarray:
+        return self.rng.uniform(-PAPER_ACTION_LIMIT, PAPER_ACTION_LIMIT, ACTION_SIZE)
+
+
+NON_LEARNED = ("baseline", "random")
+
+
+def force_obs_of(spec: str) -> bool:
+    """Whether the controller named by ``spec`` needs the force-aware observation (from its own folder)."""
+    if spec in NON_LEARNED:
+        return True  # they ignore the observation's force part
+    return artifacts.force_obs(artifacts.resolve(spec))
+
+
+def load_controller(spec: str, task: NavigationTask | None = None):
+    """'A'..'E' (shipped), 'baseline', 'random', or a policy folder (or its model.zip)."""
+    if spec == "baseline":
+        from mjendo.baseline import DLSController
+
+        if task is None:
+            raise ConfigError("the baseline controller needs the task it will drive")
+        ctrl = DLSController(task)
+    elif spec == "random":
+        ctrl = RandomController()
+    else:
+        ctrl = PPOController.from_folder(artifacts.resolve(spec))
+    if task is not None and hasattr(ctrl, "check"):
+        ctrl.check(task)
+    return ctrl

@@ -1,0 +1,227 @@
+"""The simulator: a loaded scene, its controls, the periodic load and contact sensing.
+
+``Simulator("DE")`` loads the committed scene of the condition's fidelity and
+sets the condition's load amplitude (SE 0, DE f0, UE1 2 f0, UE2 3 f0); ``step`` advances the
+physics with cable pulls and insertion in metres, drives the square-wave
+load through its actuator and checks for instability; ``contact`` reads the
+endoscope-stomach contacts with ``mujoco.mj_contactForce``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+from mjendo import endoscope, scene
+from mjendo.config import PeriodicLoad, condition
+
+
+class InstabilityError(RuntimeError):
+    """The physics diverged (NaN, exploding velocity or a MuJoCo solver warning)."""
+
+
+# A generalized velocity (m/s or rad/s) that only a diverging step reaches:
+# a fast cable snap spins light links at tens of rad/s, blow-ups go far past 1e3.
+MAX_SPEED = 1e3
+
+
+def square_wave(t: float, f0: float, half_period: float) -> float:
+    """Paper's load: +f0 while (t/T) mod 2 is in [0, 1), -f0 while in [1, 2)."""
+    if f0 == 0.0:
+        return 0.0
+    return f0 if (t / half_period) % 2.0 < 1.0 else -f0
+
+
+@dataclass
+class ContactReading:
+    """Endoscope-stomach contact at one instant (world frame, newtons, metres)."""
+
+    force: np.ndarray  # (3,) resultant force ON the endoscope
+    active: bool  # contact indicator: any contact carries force
+    points: np.ndarray  # (k, 3) contact positions
+    forces: np.ndarray  # (k, 3) per-contact force on the endoscope
+
+
+_NONE3 = np.zeros((0, 3))
+_NONE3.flags.writeable = False
+
+
+class Simulator:
+    """One scene's model and data with named access to what the task needs."""
+
+    def __init__(self, env: str = "DE", fidelity: str = "fast", path: Path | None = None,
+                 load: PeriodicLoad | None = None):
+        self.env = condition(env)
+        self.path = Path(path) if path else scene.scene_path(env, fidelity)
+        if not self.path.exists():
+            raise FileNotFoundError(f"scene file {self.path} is missing; regenerate the scenes "
+                                    "with `make models` (python -m mjendo.scene)")
+        self.model = mujoco.MjModel.from_xml_path(str(self.path))
+        self.data = mujoco.MjData(self.model)
+        self._ids(self.model)
+        load = load or PeriodicLoad()
+        # Per-vertex force amplitude (N) of this condition's square wave, and its half period T (s).
+        self.f0 = load.f0_n * self.env.load_multiplier if self.load_act >= 0 else 0.0
+        self.half_period = load.half_period_s
+        self.reset()
+
+    def _ids(self, m: mujoco.MjModel) -> None:
+        def aid(name):
+            return mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_ACTUATOR, name)
+
+        self.cable_act = np.array([aid(c) for c in endoscope.CABLES])
+        self.insert_act = aid(endoscope.INSERTION)
+        self.load_act = aid(scene.LOAD)  # -1 when the scene has no stomach
+        self.cable_ten = np.array([mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_TENDON, c)
+                                   for c in endoscope.CABLES])
+        self.tip_site = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, endoscope.TIP_SITE)
+        self.tip_body = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, endoscope.TIP_BODY)
+        self.target_site = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, scene.TARGET_BODY)
+        self.target_mocap = m.body_mocapid[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, scene.TARGET_BODY)]
+        self.insert_qpos = m.jnt_qposadr[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, endoscope.INSERTION)]
+        self.flex = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_FLEX, scene.FLEX)
+        self._vert_adr = int(m.flex_vertadr[self.flex]) if self.flex >= 0 else 0
+        # Geoms of the endoscope: every geom on a body below the carriage.
+        carriage = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "carriage")
+        scope_bodies = {b for b in range(m.nbody) if self._below(m, b, carriage)}
+        self.scope_geom = np.zeros(m.ngeom, bool)
+        self.scope_geom[[g for g in range(m.ngeom) if m.geom_bodyid[g] in scope_bodies]] = True
+        self._cable_max = m.actuator_ctrlrange[self.cable_act, 1].copy()
+        self._insert_range = m.actuator_ctrlrange[self.insert_act].copy()
+        self._f6 = np.zeros(6)
+        self._v6 = np.zeros(6)
+
+    @staticmethod
+    def _below(m: mujoco.MjModel, body: int, root: int) -> bool:
+        while body > 0:
+            if body == root:
+                return True
+            body = m.body_parentid[body]
+        return False
+
+    # ------------------------------------------------------------------ state
+    def reset(self) -> None:
+        mujoco.mj_resetData(self.model, self.data)
+        mujoco.mj_forward(self.model, self.data)
+
+    @property
+    def time(self) -> float:
+        return float(self.data.time)
+
+    @property
+    def has_stomach(self) -> bool:
+        return self.flex >= 0
+
+    @property
+    def cable_pull_max(self) -> np.ndarray:
+        return self._cable_max
+
+    @property
+    def insertion_range(self) -> np.ndarray:
+        return self._insert_range
+
+    def tip_pos(self) -> np.ndarray:
+        return self.data.site_xpos[self.tip_site].copy()
+
+    def tip_vel(self) -> np.ndarray:
+        """Linear velocity of the tip site in the world frame (m/s)."""
+        v = self._v6
+        mujoco.mj_objectVelocity(self.model, self.data, mujoco.mjtObj.mjOBJ_SITE, self.tip_site, v, 0)
+        return v[3:].copy()
+
+    def tip_axis(self) -> np.ndarray:
+        """Unit vector along the tip (the tube's local z)."""
+        return self.data.site_xmat[self.tip_site].reshape(3, 3)[:, 2].copy()
+
+    def cable_lengths(self) -> np.ndarray:
+        return self.data.ten_length[self.cable_ten].copy()
+
+    def insertion(self) -> float:
+        return float(self.data.qpos[self.insert_qpos])
+
+    def vertices(self, ids=None) -> np.ndarray:
+        """Current positions of stomach mesh vertices (all, or the given ids)."""
+        if not self.has_stomach:
+            raise ValueError(f"scene {self.env.name} has no stomach")
+        adr = self._vert_adr
+        if ids is None:
+            return self.data.flexvert_xpos[adr:adr + self.model.flex_vertnum[self.flex]].copy()
+        return self.data.flexvert_xpos[adr + np.asarray(ids)]  # fancy indexing copies
+
+    def set_target_marker(self, pos: np.ndarray, rgba=None) -> None:
+        self.data.mocap_pos[self.target_mocap] = pos
+        if rgba is not None:
+            self.model.site_rgba[self.target_site] = rgba
+
+    # ---------------------------------------------------------------- control
+    def set_controls(self, cable_pull: np.ndarray, insertion: float) -> None:
+        """Cable pulls (m, one per cable, negative pays out) and insertion (m), clipped."""
+        c = self.data.ctrl
+        c[self.cable_act] = np.minimum(np.maximum(cable_pull, -self._cable_max), self._cable_max)
+        c[self.insert_act] = min(max(insertion, self._insert_range[0]), self._insert_range[1])
+
+    def step(self, n: int = 1) -> None:
+        """Advance n physics steps, driving the periodic load; raise on divergence."""
+        m, d = self.model, self.data
+        for _ in range(n):
+            if self.load_act >= 0:
+                d.ctrl[self.load_act] = square_wave(d.time, self.f0, self.half_period)
+            mujoco.mj_step(m, d)
+        self.check()
+
+    def clear_warnings(self) -> None:
+        self.data.warning.number[:] = 0
+
+    # MuJoCo resets the state itself on a NaN and only leaves one of these warnings.
+    _BAD = [int(mujoco.mjtWarning.mjWARN_BADQACC), int(mujoco.mjtWarning.mjWARN_BADQVEL),
+            int(mujoco.mjtWarning.mjWARN_BADQPOS)]
+    _BADCTRL = int(mujoco.mjtWarning.mjWARN_BADCTRL)
+
+    def check(self) -> None:
+        d = self.data
+        if d.warning.number[self._BADCTRL]:
+            raise InstabilityError(f"a control was NaN or inf at t = {d.time:.3f} s (MuJoCo zeroed it, so the "
+                                   "actuators stopped): check the task's action scales (cable_mm_per_unit, "
+                                   "insertion_mm_per_unit) and the actions")
+        bad = int(d.warning.number[self._BAD].sum())
+        speed = float(np.abs(d.qvel).max()) if d.qvel.size else 0.0
+        if bad or not speed < MAX_SPEED:
+            raise InstabilityError(
+                f"physics diverged at t = {d.time:.3f} s (max |qvel| = {speed:.3g}, "
+                f"NaN/bad-acceleration warnings = {bad}) in {self.path.name}: lower the timestep, soften the "
+                "stomach (young) or reduce the load; see docs/physics.md")
+
+    # ---------------------------------------------------------------- contact
+    def contact(self, details: bool = False) -> ContactReading:
+        """Resultant endoscope-stomach contact force via mj_contactForce.
+
+        For geom-vs-flex contacts the geom (endoscope) is side 0 and the normal
+        points from it into the flex; ``frame.T @ f`` is the force on side 1,
+        so the force on the endoscope is its negative.
+        """
+        d = self.data
+        n = d.ncon
+        if not (n and self.has_stomach):
+            return ContactReading(np.zeros(3), False, _NONE3, _NONE3)
+        con = d.contact
+        geom, flex = con.geom[:n], con.flex[:n]
+        sel = np.flatnonzero((geom[:, 0] >= 0) & self.scope_geom[geom[:, 0]] & (flex[:, 1] == self.flex)
+                             & (con.exclude[:n] == 0) & (con.efc_address[:n] >= 0))
+        if not sel.size:
+            return ContactReading(np.zeros(3), False, _NONE3, _NONE3)
+        local = np.empty((sel.size, 3))
+        f6 = self._f6
+        for k, i in enumerate(sel):
+            mujoco.mj_contactForce(self.model, d, int(i), f6)
+            local[k] = f6[:3]
+        pushing = local[:, 0] > 0.0
+        if not pushing.any():
+            return ContactReading(np.zeros(3), False, _NONE3, _NONE3)
+        frames = con.frame[sel[pushing]].reshape(-1, 3, 3)
+        # Rows of the contact frame are its axes: world = frame.T @ local, negated for side 0.
+        world = -np.einsum("kji,kj->ki", frames, local[pushing])
+        points = con.pos[sel[pushing]] if details else _NONE3
+        return ContactReading(world.sum(0), True, points, world if details else _NONE3)

@@ -1,0 +1,374 @@
+"""Train the paper's policies with PPO: ``python -m mjendo.train --policy E`` (or ``make train POLICY=E``).
+
+A run lives in ``runs/<policy>/seed<N>/``: the resolved config, episodes.csv
+(every training episode), evaluations.csv (periodic 80-step evaluation:
+success rate, mean final error), TensorBoard logs, checkpoints and, at the
+end, the policy folder files (:mod:`mjendo.artifacts`). Running the same
+command again resumes from the last checkpoint; ``--ship`` (``make ship``)
+copies a finished run's policy to ``models/policies/<policy>/``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import os
+import re
+import shutil
+import signal
+import sys
+import time
+from dataclasses import asdict
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from mjendo import artifacts, cli, paths
+from mjendo.artifacts import MODEL_FILE, NORM_FILE, PolicyError
+from mjendo.config import PAPER_EVAL_STEPS, ConfigError
+from mjendo.train_config import TrainConfig, from_dict
+from mjendo.train_config import load as load_config
+
+CKPT_DIR = "checkpoints"
+BEST_DIR = "best"
+CKPT_RE = re.compile(r"model_(\d+)\.zip")
+# Seeds of the periodic evaluations during training: far from the evaluation study's (0, 1, ...), so
+# picking best/ never looks at the trials that are reported.
+TRAINING_EVAL_SEED = 10_000_000
+
+
+def make_env(cfg: TrainConfig, rank: int, max_steps: int | None = None):
+    """A thunk building one monitored training (or evaluation) environment of the run's task."""
+    task = cfg.task_config()
+
+    def thunk():
+        import torch
+        from stable_baselines3.common.monitor import Monitor
+
+        from mjendo.envs import EndoscopeEnv
+
+        torch.set_num_threads(1)
+        kw = {**asdict(task), "max_steps": max_steps or task.max_steps}
+        env = Monitor(EndoscopeEnv(**kw), info_keywords=("is_success", "distance_mm"))
+        env.reset(seed=cfg.seed * 1000 + rank)
+        return env
+
+    return thunk
+
+
+class _Appender:
+    """A CSV log that survives a kill: opened for appending, flushed every row."""
+
+    def __init__(self, path: Path, header: list[str]):
+        new = not path.exists()
+        self.f = open(path, "a", newline="")  # noqa: SIM115 (kept open for the run)
+        self.w = csv.writer(self.f)
+        if new:
+            self.w.writerow(header)
+
+    def writerow(self, row) -> None:
+        self.w.writerow(row)
+        self.f.flush()
+
+
+def periodic_evaluation(model, venv, cfg: TrainConfig, meta: dict) -> tuple[float, float, float]:
+    """Deterministic 80-step trials of the current policy: success rate, mean final error (mm), mean return."""
+    from mjendo.envs import EndoscopeEnv
+    from mjendo.policies import PPOController
+    from mjendo.rollout import run
+
+    task = cfg.task_config()
+    env = EndoscopeEnv(**{**asdict(task), "max_steps": PAPER_EVAL_STEPS})
+    ctrl = PPOController.from_training(model, venv, meta)
+    results = [run(env, ctrl, seed=TRAINING_EVAL_SEED + cfg.seed * 1000 + i) for i in range(cfg.eval_episodes)]
+    env.close()
+    succ = [float(info["is_success"]) for info, _ in results]
+    err = [float(info["distance_mm"]) for info, _ in results]
+    return float(np.mean(succ)), float(np.mean(err)), float(np.mean([r for _, r in results]))
+
+
+def _callbacks(cfg: TrainConfig, run: Path, meta: dict, start_steps: int):
+    from stable_baselines3.common.callbacks import BaseCallback
+    from tqdm import tqdm
+
+    class Training(BaseCallback):
+        """Episode log, periodic evaluation, checkpoints and a progress bar."""
+
+        def __init__(self):
+            super().__init__()
+            self.episodes = _Appender(run / "episodes.csv", ["timesteps", "reward", "length", "success", "final_mm"])
+            self.evals = _Appender(run / "evaluations.csv", ["timesteps", "success_rate", "mean_final_mm",
+                                                             "mean_reward", "wall_s"])
+            self.next_eval = (start_steps // cfg.eval_every + 1) * cfg.eval_every
+            self.next_ckpt = (start_steps // cfg.checkpoint_every + 1) * cfg.checkpoint_every
+            self.bar = tqdm(total=cfg.total_timesteps, initial=start_steps, unit="step", desc=f"policy {cfg.policy}",
+                            dynamic_ncols=True, mininterval=2.0, file=sys.stdout)
+            self.t0, self.s0 = time.time(), start_steps
+            self.recent: list[float] = []
+            self.last_eval: float | None = None
+            self.best = _best_so_far(run)
+
+        def _on_step(self) -> bool:
+            for info in self.locals["infos"]:
+                ep = info.get("episode")
+                if ep is not None:
+                    self.episodes.writerow([self.num_timesteps, ep["r"], ep["l"], int(info["is_success"]),
+                                            info["distance_mm"]])
+                    self.recent = (self.recent + [float(info["is_success"])])[-100:]
+            self.bar.update(self.model.n_envs)
+            if self.num_timesteps >= self.next_eval:
+                self.next_eval += cfg.eval_every
+                self.evaluate()
+            if self.num_timesteps >= self.next_ckpt:
+                self.next_ckpt += cfg.checkpoint_every
+                save_checkpoint(self.model, run)
+            if self.n_calls % 50 == 0:
+                rate = (self.num_timesteps - self.s0) / max(time.time() - self.t0, 1e-9)
+                shown = {"steps_s": f"{rate:.0f}", "success": f"{np.mean(self.recent or [0]):.2f}"}
+                if self.last_eval is not None:  # before the first evaluation there is nothing to show
+                    shown["eval_sr"] = f"{self.last_eval:.2f}"
+                self.bar.set_postfix(shown, refresh=False)
+            return True
+
+        def evaluate(self):
+            sr, err, rew = periodic_evaluation(self.model, self.training_env, cfg, meta)
+            self.last_eval = sr
+            if (sr, -err) >= self.best:  # keep the best-evaluated policy, as rl-zoo does
+                self.best = (sr, -err)
+                artifacts.save(run / BEST_DIR, self.model, {**meta, "timesteps": self.num_timesteps,
+                                                            "eval_success_rate": sr, "eval_mean_final_mm": err})
+            self.evals.writerow([self.num_timesteps, sr, err, rew, time.time() - self.t0])
+            self.logger.record("eval/success_rate", sr)
+            self.logger.record("eval/mean_final_mm", err)
+            self.logger.record("time/steps_per_s", (self.num_timesteps - self.s0) / (time.time() - self.t0))
+
+        def _on_training_end(self) -> None:
+            self.bar.close()
+
+    return Training()
+
+
+def checkpoints(run: Path) -> list[tuple[int, Path]]:
+    """(steps, path) of the run's checkpoints, oldest first; other files in the folder are ignored."""
+    found = [(int(m.group(1)), p) for p in (run / CKPT_DIR).glob("model_*.zip") if (m := CKPT_RE.fullmatch(p.name))]
+    return sorted(found)
+
+
+def latest_checkpoint(run: Path) -> Path | None:
+    found = checkpoints(run)
+    return found[-1][1] if found else None
+
+
+def save_checkpoint(model, run: Path) -> Path:
+    """Model + normalisation stats, written atomically; keeps the last two."""
+    d = run / CKPT_DIR
+    d.mkdir(parents=True, exist_ok=True)
+    path = d / f"model_{model.num_timesteps}.zip"
+    tmp = d / "partial.zip"
+    model.save(str(tmp))
+    env = model.get_env()
+    if hasattr(env, "obs_rms"):
+        env.save(str(d / f"vecnormalize_{model.num_timesteps}.pkl"))
+    os.replace(tmp, path)
+    for steps, old in checkpoints(run)[:-2]:
+        old.unlink()
+        (d / f"vecnormalize_{steps}.pkl").unlink(missing_ok=True)
+    return path
+
+
+def _best_so_far(run: Path) -> tuple[float, float]:
+    m = artifacts.read_meta(run / BEST_DIR) if (run / BEST_DIR).exists() else {}
+    if "eval_success_rate" not in m:
+        return (-1.0, -float("inf"))
+    return (m["eval_success_rate"], -m["eval_mean_final_mm"])
+
+
+def _writable(path: Path) -> None:
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        probe = path / ".write_test"
+        probe.write_text("")
+        probe.unlink()
+    except OSError as exc:
+        raise ConfigError(f"cannot write the run folder {path}: {exc.strerror}; pass --out to a writable "
+                          "folder") from exc
+
+
+def learning_rate_schedule(cfg: TrainConfig):
+    """The config's rate as SB3 wants it: constant, or linear from learning_rate down to 0 at the budget's end."""
+    lr0 = float(cfg.ppo.learning_rate)
+    if cfg.ppo.lr_schedule == "linear":
+        return lambda remaining: lr0 * remaining
+    return lambda _remaining: lr0
+
+
+def build_ppo(cfg: TrainConfig, venv, tensorboard_log: str | None = None):
+    """A fresh PPO from a resolved config: the one place the config's PPO fields become SB3 arguments."""
+    import torch
+    from stable_baselines3 import PPO
+
+    p = cfg.ppo
+    return PPO("MlpPolicy", venv, seed=cfg.seed, device="cpu", verbose=0, tensorboard_log=tensorboard_log,
+               learning_rate=learning_rate_schedule(cfg), n_steps=p.n_steps, batch_size=p.batch_size,
+               n_epochs=p.n_epochs, gamma=p.gamma, gae_lambda=p.gae_lambda, clip_range=p.clip_range,
+               ent_coef=p.ent_coef,
+               policy_kwargs={"net_arch": {"pi": list(p.net_arch), "vf": list(p.net_arch)},
+                              "activation_fn": torch.nn.Tanh, "log_std_init": p.log_std_init})
+
+
+def _start_from(cfg: TrainConfig, venv):
+    """A PPO initialised from a trained policy folder, with a fresh learning-rate schedule (fine-tuning)."""
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    src = Path(cfg.init_from)
+    if not (src / MODEL_FILE).exists():
+        raise ConfigError(f"--init-from {src} holds no {MODEL_FILE}; give a policy folder such as "
+                          "models/policies/E or a finished run folder")
+    if cfg.normalize:
+        venv = VecNormalize.load(str(src / NORM_FILE), venv)  # keeps adapting to the new stomach
+        venv.training = True
+    schedule = learning_rate_schedule(cfg)
+    model = PPO.load(str(src / MODEL_FILE), env=venv, device="cpu",
+                     custom_objects={"learning_rate": schedule, "lr_schedule": schedule})
+    model.num_timesteps = 0  # this run's budget counts from here
+    return model
+
+
+def _run_config(run: Path, cfg: TrainConfig) -> TrainConfig:
+    """On resume the run's own config rules (only the budget may grow); a new run records its config."""
+    saved = run / "config.yaml"
+    if saved.exists():
+        try:
+            own = from_dict(TrainConfig, yaml.safe_load(saved.read_text()), str(saved))
+        except (ConfigError, yaml.YAMLError, TypeError) as exc:
+            raise ConfigError(f"{saved} is not a valid run config ({exc}); pass --fresh to start the run again") \
+                from exc
+        own.total_timesteps = cfg.total_timesteps
+        own.check()
+        return own
+    return cfg
+
+
+def run_folder(cfg: TrainConfig, out: Path, run_name: str | None) -> Path:
+    default = f"seed{cfg.seed}" + ("" if cfg.fidelity == "fast" else f"-{cfg.fidelity}")
+    return Path(out) / cfg.policy / (run_name or default)
+
+
+def train(policy: str, timesteps: int | None = None, seed: int | None = None, n_envs: int | None = None,
+          out: Path | None = None, run_name: str | None = None, fresh: bool = False,
+          vec_env: str | None = None, ship: bool = False, config_file: Path | None = None,
+          fidelity: str | None = None, init_from: Path | None = None, learning_rate: float | None = None) -> Path:
+    """Train (or resume) one policy; returns the run folder."""
+    cfg = load_config(policy, config_file or paths.TRAINING_CONFIG, total_timesteps=timesteps, seed=seed,
+                      n_envs=n_envs, vec_env=vec_env, fidelity=fidelity, init_from=init_from,
+                      learning_rate=learning_rate)
+    run = run_folder(cfg, out or paths.RUNS, run_name)
+    _writable(run)
+    if fresh and run.exists():
+        shutil.rmtree(run)
+        _writable(run)
+    cfg = _run_config(run, cfg)
+    print(f"run folder: {run}", flush=True)
+
+    import torch
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecNormalize
+
+    torch.set_num_threads(1)
+    meta = {"policy": policy, "seed": cfg.seed, "init_from": cfg.init_from, **artifacts.task_meta(cfg.task_config())}
+    Vec = SubprocVecEnv if cfg.vec_env == "subproc" and cfg.n_envs > 1 else DummyVecEnv
+    venv = Vec([make_env(cfg, i) for i in range(cfg.n_envs)])
+    ckpt = latest_checkpoint(run)
+    if ckpt is not None:
+        steps = int(CKPT_RE.fullmatch(ckpt.name).group(1))
+        norm = ckpt.parent / f"vecnormalize_{steps}.pkl"
+        try:
+            if cfg.normalize:
+                venv = VecNormalize.load(str(norm), venv)
+            model = PPO.load(str(ckpt), env=venv, device="cpu")
+        except Exception as exc:
+            venv.close()
+            files = f"{ckpt} (with {norm.name})" if cfg.normalize else str(ckpt)
+            raise ConfigError(f"checkpoint {files} is unreadable ({exc}); delete it to fall back to the "
+                              "previous one, or pass --fresh") from exc
+        print(f"resuming from {ckpt.name} ({steps} steps)")
+    else:
+        if cfg.init_from:
+            model = _start_from(cfg, venv)
+            model.tensorboard_log = str(run / "tb")
+            print(f"fine-tuning {cfg.init_from} in the {cfg.fidelity} stomach")
+        else:
+            if cfg.normalize:
+                venv = VecNormalize(venv, gamma=cfg.ppo.gamma)
+            model = build_ppo(cfg, venv, tensorboard_log=str(run / "tb"))
+        (run / "config.yaml").write_text(yaml.safe_dump(cfg.to_dict(), sort_keys=False))
+
+    start, total = model.num_timesteps, cfg.total_timesteps
+    final_meta = artifacts.read_meta(run)
+    if start >= total and (run / MODEL_FILE).exists() and final_meta.get("timesteps"):
+        venv.close()
+        print(f"{run} is complete ({start} steps)")
+        _finish(run, policy, ship)
+        return run
+    cb = _callbacks(cfg, run, meta, start)
+    # SIGTERM (e.g. a scheduler) stops like Ctrl-C: checkpoint, then exit.
+    signal.signal(signal.SIGTERM, lambda *_: (_ for _ in ()).throw(KeyboardInterrupt()))
+    t0 = time.time()
+    try:
+        if total > start:
+            model.learn(total - start, callback=cb, reset_num_timesteps=False, tb_log_name="ppo")
+    except KeyboardInterrupt:
+        path = save_checkpoint(model, run)
+        print(f"\ninterrupted: saved {path}; run the same command to resume")
+        venv.close()
+        raise SystemExit(130) from None
+    wall = time.time() - t0
+    meta.update({"timesteps": int(model.num_timesteps), "wall_s": final_meta.get("wall_s", 0.0) + wall,
+                 "steps_per_s": (model.num_timesteps - start) / max(wall, 1e-9), "command": " ".join(sys.argv),
+                 "training": cfg.to_dict()})
+    artifacts.save(run, model, meta)
+    venv.close()
+    from mjendo.figures import training_curve
+
+    training_curve(run, run / "curve.png")
+    print(f"done: {run} ({meta['timesteps']} steps, {meta['wall_s'] / 60:.1f} min)")
+    _finish(run, policy, ship)
+    return run
+
+
+def _finish(run: Path, policy: str, ship: bool) -> None:
+    """Ship if asked, and say how to use the result."""
+    if ship:
+        print(f"shipped to {artifacts.ship(run, policy)}")
+    make = f" (= make ship POLICY={policy} RUN={run.name})" if run.parent.parent.resolve() == paths.RUNS else ""
+    print(f"watch it:    python -m mjendo.viewer --headless --record {policy}.mp4 --policy {run}\n"
+          f"evaluate it: python -m mjendo.evaluation --policies {run} --trials 100\n"
+          f"ship it:     python -m mjendo.artifacts ship {run} {policy}{make}")
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m mjendo.train", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--policy", required=True, help="A, B, C, D or E")
+    ap.add_argument("--timesteps", type=int)
+    ap.add_argument("--seed", type=int)
+    ap.add_argument("--n-envs", type=int)
+    ap.add_argument("--vec-env", choices=["subproc", "dummy"])
+    ap.add_argument("--out", type=Path, default=paths.RUNS)
+    ap.add_argument("--run", help="run name (default seed<N>)")
+    ap.add_argument("--fresh", action="store_true", help="discard an existing run instead of resuming")
+    ap.add_argument("--ship", action="store_true", help="copy the finished policy to models/policies/")
+    ap.add_argument("--config", type=Path, help="training config (default train/policies.yaml)")
+    ap.add_argument("--fidelity", choices=["fast", "full"], help="stomach to train in (default: the config's)")
+    ap.add_argument("--init-from", type=Path, metavar="POLICY_DIR",
+                    help="fine-tune a trained policy (e.g. models/policies/E) with the config's finetune block")
+    ap.add_argument("--learning-rate", type=float)
+    a = ap.parse_args(argv)
+    return cli.run(lambda: train(a.policy, a.timesteps, a.seed, a.n_envs, a.out, a.run, a.fresh, a.vec_env, a.ship,
+                                 a.config, a.fidelity, a.init_from, a.learning_rate), ConfigError, PolicyError)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,262 @@
+"""The training configuration: dataclasses with one docstring per field, loaded from train/policies.yaml.
+
+The YAML has ``defaults`` and one entry per policy under ``policies``; an
+entry overrides any default, its ``ppo:``, ``task:`` and ``finetune:`` blocks
+are merged key by key into the defaults' blocks. The values live in the YAML
+only (the dataclasses document and type them); unknown or missing keys and
+values of the wrong type are refused with the file and the key named, so a typo
+cannot silently train something else (CleanRL's ``Args`` style).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import types
+import typing
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from mjendo.config import CONDITIONS, FIDELITIES, ConfigError, TaskConfig, task_config
+
+POLICY_NAMES = ("A", "B", "C", "D", "E")  # paper: the five policies
+TASK_KEYS_SET_BY_POLICY = ("env", "fidelity", "force_obs")  # top-level fields of a policy entry
+
+
+@dataclass
+class PPOArgs:
+    """Stable-Baselines3 PPO arguments (paper: PPO; values it does not give are SB3/zoo defaults)."""
+
+    learning_rate: float
+    """initial learning rate"""
+    lr_schedule: str
+    """'linear' (decays to 0 at total_timesteps) or 'constant'"""
+    n_steps: int
+    """steps per environment per update"""
+    batch_size: int
+    """minibatch size"""
+    n_epochs: int
+    """passes over each rollout"""
+    gamma: float
+    """discount factor"""
+    gae_lambda: float
+    """GAE lambda"""
+    clip_range: float
+    """PPO clipping"""
+    ent_coef: float
+    """entropy bonus weight"""
+    net_arch: list[int]
+    """hidden layers of policy and value MLPs (paper: [256, 128, 64, 32])"""
+    log_std_init: float
+    """initial log standard deviation of the Gaussian policy"""
+
+    def check(self) -> None:
+        if self.lr_schedule not in ("linear", "constant"):
+            raise ConfigError(f"ppo.lr_schedule must be 'linear' or 'constant', not {self.lr_schedule!r}")
+        for name in ("n_steps", "batch_size", "n_epochs"):
+            if getattr(self, name) < 1:
+                raise ConfigError(f"ppo.{name} must be >= 1")
+        if not (self.learning_rate > 0 and 0 < self.gamma <= 1 and 0 <= self.gae_lambda <= 1
+                and self.clip_range > 0 and self.ent_coef >= 0):
+            raise ConfigError("ppo: learning_rate and clip_range must be > 0, gamma in (0, 1], gae_lambda in "
+                              "[0, 1], ent_coef >= 0")
+        if not self.net_arch or min(self.net_arch) < 1:
+            raise ConfigError("ppo.net_arch must list positive layer widths, e.g. [256, 128, 64, 32]")
+
+
+@dataclass
+class FinetuneArgs:
+    """What changes when a run starts from a trained policy (``--init-from``)."""
+
+    fidelity: str
+    """stomach to continue in"""
+    total_timesteps: int
+    """budget of the fine-tuning run"""
+    learning_rate: float
+    """initial learning rate of the fine-tuning run"""
+
+
+@dataclass
+class TrainConfig:
+    """One policy's resolved training run."""
+
+    policy: str
+    """A-E (paper's five policies)"""
+    env: str
+    """condition trained in: FE, SE, DE, UE1, UE2"""
+    force_obs: bool
+    """observe the contact indicator and force (policies C and E)"""
+    fidelity: str
+    """stomach: 'fast' (reduced order) or 'full' (per-vertex FEM)"""
+    seed: int
+    """training seed; the run folder is seed<N>"""
+    n_envs: int
+    """parallel environments"""
+    vec_env: str
+    """'dummy' (one process) or 'subproc' (one process per environment)"""
+    total_timesteps: int
+    """budget in environment steps"""
+    checkpoint_every: int
+    """steps between checkpoints (a killed run loses at most this much)"""
+    eval_every: int
+    """steps between periodic evaluations"""
+    eval_episodes: int
+    """80-step evaluation trials per periodic evaluation"""
+    normalize: bool
+    """VecNormalize observations and rewards"""
+    ppo: PPOArgs
+    """PPO arguments"""
+    finetune: FinetuneArgs
+    """the fine-tuning block, applied with init_from"""
+    task: dict[str, Any] = field(default_factory=dict)
+    """TaskConfig fields other than env/fidelity/force_obs (action scales, max_steps, force_penalty, ...)"""
+    init_from: str | None = None
+    """policy folder to start from (fine-tuning), or None"""
+
+    def task_config(self) -> TaskConfig:
+        """The task this run trains in (validated)."""
+        return task_config(env=self.env, fidelity=self.fidelity, force_obs=self.force_obs, **self.task)
+
+    def check(self) -> None:
+        if self.policy not in POLICY_NAMES:
+            raise ConfigError(f"unknown policy {self.policy!r}; valid: {', '.join(POLICY_NAMES)}")
+        if self.env not in CONDITIONS or self.fidelity not in FIDELITIES:
+            raise ConfigError(f"policy {self.policy}: env must be one of {', '.join(CONDITIONS)} and fidelity one "
+                              f"of {', '.join(FIDELITIES)}")
+        if self.vec_env not in ("dummy", "subproc"):
+            raise ConfigError(f"vec_env must be 'subproc' or 'dummy', not {self.vec_env!r}")
+        if self.n_envs < 1:
+            raise ConfigError(f"n_envs must be >= 1 (got {self.n_envs})")
+        if self.seed < 0:
+            raise ConfigError(f"seed must be >= 0 (got {self.seed}); seeds name run folders (seed<N>)")
+        if self.total_timesteps < 1:
+            raise ConfigError(f"total_timesteps must be >= 1 (got {self.total_timesteps}): a run that trains no "
+                              "step would be marked finished and could be shipped")
+        for name in ("checkpoint_every", "eval_every", "eval_episodes"):
+            if getattr(self, name) < 1:
+                raise ConfigError(f"{name} must be >= 1")
+        unknown = set(self.task) - {f.name for f in fields(TaskConfig)}
+        if unknown or set(self.task) & set(TASK_KEYS_SET_BY_POLICY + ("target_list",)):
+            raise ConfigError(f"task block: unknown or not settable keys {sorted(unknown or self.task)}; valid: "
+                              + ", ".join(f.name for f in fields(TaskConfig)
+                                          if f.name not in TASK_KEYS_SET_BY_POLICY + ("target_list",)))
+        self.ppo.check()
+        self.task_config()
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+# ------------------------------------------------------------------ loading
+def _typename(tp) -> str:
+    return getattr(tp, "__name__", str(tp))
+
+
+_SCALARS = {
+    bool: (lambda v: isinstance(v, bool), "true or false"),
+    int: (lambda v: isinstance(v, int) and not isinstance(v, bool), "a whole number"),
+    float: (lambda v: isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v), "a finite number"),
+    str: (lambda v: isinstance(v, str), "a string"),
+}
+
+
+def _coerce(value, tp, where: str):
+    """``value`` as type ``tp`` (a dataclass, list[int], X | None, bool, int, float, str, dict), or ConfigError."""
+    origin = typing.get_origin(tp)
+    if origin in (typing.Union, types.UnionType):
+        args = typing.get_args(tp)
+        if value is None and type(None) in args:
+            return None
+        return _coerce(value, next(a for a in args if a is not type(None)), where)
+    if dataclasses.is_dataclass(tp):
+        if not isinstance(value, dict):
+            raise ConfigError(f"{where} must be a mapping of {_typename(tp)} fields, not {value!r}")
+        return from_dict(tp, value, where)
+    if origin is list:
+        (item,) = typing.get_args(tp)
+        if not isinstance(value, list):
+            raise ConfigError(f"{where} must be a list, not {value!r}")
+        return [_coerce(v, item, f"{where}[{i}]") for i, v in enumerate(value)]
+    if origin is dict or tp is dict:
+        if not isinstance(value, dict):
+            raise ConfigError(f"{where} must be a mapping, not {value!r}")
+        return dict(value)
+    if tp in _SCALARS:
+        ok, what = _SCALARS[tp]
+        if not ok(value):
+            raise ConfigError(f"{where} must be {what}, not {value!r}")
+        return float(value) if tp is float else value
+    return value
+
+
+def from_dict(cls, data: dict, where: str):
+    """A dataclass from a mapping: unknown, missing or mistyped keys are a ConfigError naming them."""
+    hints = typing.get_type_hints(cls)
+    known = {f.name for f in fields(cls)}
+    unknown = sorted(set(data) - known)
+    if unknown:
+        raise ConfigError(f"{where}: unknown key(s) {', '.join(unknown)}; valid: {', '.join(sorted(known))}")
+    required = {f.name for f in fields(cls)
+                if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING}
+    missing = sorted(required - set(data))
+    if missing:
+        raise ConfigError(f"{where}: missing key(s) {', '.join(missing)}")
+    return cls(**{k: _coerce(v, hints[k], f"{where}.{k}") for k, v in data.items()})
+
+
+def _merge(base: dict, over: dict) -> dict:
+    """Entry over defaults; the ppo/task/finetune blocks merge key by key."""
+    out = dict(base)
+    for k, v in over.items():
+        out[k] = {**out[k], **v} if isinstance(v, dict) and isinstance(out.get(k), dict) else v
+    return out
+
+
+def read_yaml(path: Path) -> dict:
+    path = Path(path)
+    if not path.exists():
+        raise ConfigError(f"training config {path} does not exist")
+    try:
+        raw = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"training config {path} is not valid YAML: {exc}") from exc
+    if not isinstance(raw, dict) or not isinstance(raw.get("policies"), dict):
+        raise ConfigError(f"training config {path} must be a YAML mapping with 'defaults' and 'policies' "
+                          "(see train/policies.yaml)")
+    if not isinstance(raw.get("defaults", {}), dict):
+        raise ConfigError(f"training config {path}: 'defaults' must be a mapping")
+    return raw
+
+
+def load(policy: str, path: Path, **overrides) -> TrainConfig:
+    """The resolved, validated config of one policy: defaults, its entry, fine-tuning block, then overrides.
+
+    ``overrides`` are command-line values (None: not given); ``learning_rate``
+    goes into the ppo block, ``init_from`` switches on the finetune block.
+    """
+    if policy not in POLICY_NAMES:
+        raise ConfigError(f"unknown policy {policy!r}; valid: {', '.join(POLICY_NAMES)}")
+    raw = read_yaml(path)
+    entry = raw["policies"].get(policy)
+    if not isinstance(entry, dict):
+        raise ConfigError(f"training config {path} has no entry for policy {policy} under 'policies'")
+    merged = _merge(raw.get("defaults") or {}, entry)
+    merged["policy"] = policy
+    cfg = from_dict(TrainConfig, merged, f"{Path(path).name} policy {policy}")
+    given = {k: v for k, v in overrides.items() if v is not None}
+    if given.get("init_from") is not None:
+        ft = cfg.finetune
+        cfg.fidelity, cfg.total_timesteps = ft.fidelity, ft.total_timesteps
+        cfg.ppo.learning_rate = ft.learning_rate
+        cfg.init_from = str(given["init_from"])
+    if "learning_rate" in given:
+        cfg.ppo.learning_rate = _coerce(given.pop("learning_rate"), float, "--learning-rate")
+    given.pop("init_from", None)
+    hints = typing.get_type_hints(TrainConfig)
+    for k, v in given.items():
+        setattr(cfg, k, _coerce(v, hints[k], f"--{k.replace('_', '-')}"))
+    cfg.check()
+    return cfg

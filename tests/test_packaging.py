@@ -1,0 +1,73 @@
+"""mjendo outside the checkout: a wheel installed into a fresh virtualenv runs policy E; imports stay light."""
+
+import subprocess
+import sys
+import sysconfig
+import textwrap
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+
+EPISODE = textwrap.dedent("""
+    import gymnasium as gym
+    import mjendo
+    from mjendo import paths
+    from mjendo.policies import load_controller
+    from mjendo.rollout import run
+
+    assert not paths.IN_CHECKOUT and "site-packages" in str(paths.MODELS), paths.MODELS
+    env = gym.make("mjendo/DE-v0", force_obs=True, max_steps=80).unwrapped
+    ctrl = load_controller("E", env.task)
+    info, ret = run(env, ctrl, seed=901)
+    print("episode", info["step"], round(info["distance_mm"], 2), info["is_success"], mjendo.__file__)
+""")
+
+
+def test_wheel_installs_into_a_fresh_venv_and_runs_policy_e(tmp_path):
+    wheels = tmp_path / "wheels"
+    subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q", "-w",
+                    str(wheels), str(ROOT)], check=True, capture_output=True, cwd=tmp_path)
+    (wheel,) = wheels.glob("mjendo-*.whl")
+    venv = tmp_path / "venv"
+    subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(venv)], check=True)
+    python = venv / "bin" / "python"
+    subprocess.run([sys.executable, "-m", "pip", "--python", str(python), "install", "--no-deps", "-q", str(wheel)],
+                   check=True, capture_output=True)
+    # The dependencies (MuJoCo, torch, SB3, ...) come from this environment's site-packages, appended after the
+    # fresh venv's own: mjendo itself can only come from the wheel (this environment's editable mjendo is not
+    # activated without its .pth file being processed).
+    fresh_site = Path(subprocess.run([str(python), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
+                                     check=True, capture_output=True, text=True).stdout.strip())
+    (fresh_site / "deps.pth").write_text(sysconfig.get_paths()["purelib"] + "\n")
+    outside = tmp_path / "elsewhere"
+    outside.mkdir()
+    res = subprocess.run([str(python), "-c", EPISODE], cwd=outside, capture_output=True, text=True, timeout=600)
+    assert res.returncode == 0, res.stderr[-3000:]
+    line = [ln for ln in res.stdout.splitlines() if ln.startswith("episode")][-1]
+    assert str(venv) in line and str(ROOT) not in line  # the installed copy ran
+    steps = int(line.split()[1])
+    assert 1 <= steps <= 80
+
+
+@pytest.mark.parametrize("module", ["mjendo", "mjendo.units", "mjendo.config", "mjendo.anatomy"])
+def test_importing_mjendo_loads_neither_mujoco_nor_gymnasium(module):
+    code = f"import sys, {module}; print(sorted(m for m in ('mujoco', 'gymnasium') if m in sys.modules))"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "[]"
+
+
+def test_ids_are_registered_whichever_is_imported_first():
+    for code in ("import mjendo, gymnasium as g", "import gymnasium as g, mjendo"):
+        res = subprocess.run([sys.executable, "-c", code + "; print(sorted(i for i in g.registry if 'mjendo' in i "
+                              "or i == 'endogym-v0'))"], capture_output=True, text=True, check=True)
+        assert res.stdout.strip() == str(sorted(["endogym-v0", *(f"mjendo/{e}-v0" for e in
+                                                                  ("DE", "FE", "SE", "UE1", "UE2"))]))
+
+
+@pytest.mark.parametrize("args", [["mjendo.anatomy", "report"], ["mjendo.scene", "--help"], ["mjendo.train", "--help"],
+                                  ["mjendo.evaluation", "--help"], ["mjendo.viewer", "--help"]])
+def test_command_line_tools_start_without_warnings(args):
+    res = subprocess.run([sys.executable, "-W", "default", "-m", *args], capture_output=True, text=True, cwd=ROOT)
+    assert res.returncode == 0 and "Warning" not in res.stderr, res.stderr

@@ -1,0 +1,111 @@
+"""Policy folders: every shipped policy loads and acts, normalisation matches SB3, bad files are named."""
+
+import json
+import pickle
+import shutil
+
+import numpy as np
+import pytest
+
+from mjendo import artifacts
+from mjendo.config import PAPER_EVAL_STEPS
+from mjendo.envs import EndoscopeEnv
+from mjendo.paths import policies_dir
+from mjendo.policies import PolicyError, PPOController, force_obs_of, load_controller
+from mjendo.rollout import run
+
+TRAINED_IN = {"A": "FE", "B": "SE", "C": "SE", "D": "DE", "E": "DE"}  # paper: the five policies
+
+
+@pytest.mark.parametrize("policy", list(TRAINED_IN))
+def test_every_shipped_policy_loads_and_reaches_a_target_in_its_environment(policy):
+    meta = artifacts.read_meta(policies_dir() / policy)
+    assert meta["task"]["env"] == TRAINED_IN[policy] and meta["timesteps"] > 100_000
+    env = EndoscopeEnv(TRAINED_IN[policy], force_obs=force_obs_of(policy), max_steps=PAPER_EVAL_STEPS)
+    ctrl = load_controller(policy, env.task)
+    assert ctrl.n_obs == (15 if policy in "CE" else 11)
+    # Success must be possible: each shipped policy reaches >= 90 % in its own environment.
+    outcomes = []
+    for seed in range(900, 906):  # seeds the evaluation study never uses
+        info, _ = run(env, ctrl, seed=seed)
+        outcomes.append(info["is_success"])
+        if info["is_success"]:
+            assert info["distance_mm"] < 3.0 and info["step"] <= PAPER_EVAL_STEPS
+            break
+    assert any(outcomes), f"policy {policy} reached no target in {len(outcomes)} episodes"
+
+
+def test_normalize_is_sb3s_vecnormalize():
+    from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
+
+    ctrl = PPOController.from_folder(policies_dir() / "E")
+    vn = VecNormalize.load(str(policies_dir() / "E" / artifacts.NORM_FILE),
+                           DummyVecEnv([lambda: EndoscopeEnv("DE")]))
+    env = EndoscopeEnv("DE")
+    obs, _ = env.reset(seed=1)
+    for _ in range(5):
+        np.testing.assert_allclose(ctrl.normalize(obs), vn.normalize_obs(obs), rtol=1e-6, atol=1e-6)
+        obs, *_ = env.step(np.full(5, 0.3))
+    big = np.full(15, 1e6, np.float32)  # clipped at clip_obs
+    np.testing.assert_allclose(ctrl.normalize(big), vn.normalize_obs(big), rtol=1e-6)
+
+
+def test_what_a_policy_observes_comes_from_its_own_folder(tmp_path, monkeypatch):
+    # No training YAML is read: a policy folder alone says whether it wants contact and force.
+    monkeypatch.setattr("mjendo.paths.TRAINING_CONFIG", tmp_path / "missing.yaml")
+    assert force_obs_of("E") and force_obs_of("C") and not force_obs_of("D") and not force_obs_of("A")
+    copy = tmp_path / "E_copy"
+    shutil.copytree(policies_dir() / "E", copy)
+    assert force_obs_of(str(copy)) and force_obs_of(str(copy / "model.zip"))
+
+
+@pytest.fixture
+def policy_copy(tmp_path):
+    d = tmp_path / "E"
+    d.mkdir()
+    for name in ("model.zip", "vecnormalize.pkl", "meta.json"):
+        shutil.copy2(policies_dir() / "E" / name, d / name)
+    return d
+
+
+def test_normalisation_file_that_is_not_a_vecnormalize(policy_copy):
+    (policy_copy / "vecnormalize.pkl").write_bytes(pickle.dumps({"obs_rms": None}))
+    with pytest.raises(PolicyError, match=r"vecnormalize.pkl holds a dict, not a Stable-Baselines3 VecNormalize"):
+        artifacts.load(policy_copy)
+
+
+def test_normalisation_file_of_another_policy(policy_copy):
+    shutil.copy2(policies_dir() / "B" / "vecnormalize.pkl", policy_copy / "vecnormalize.pkl")
+    with pytest.raises(PolicyError, match=r"normalises 11 observations but .*model.zip takes 15.*different runs"):
+        artifacts.load(policy_copy)
+
+
+@pytest.mark.parametrize("content,message", [
+    ("[1, 2]", "must hold a JSON object"),
+    ("{not json", r"cannot read .*meta.json"),
+    ('{"task": {"env": "XX"}}', "its task is not valid"),
+    ('{"observation": [{"name": "x", "size": 11, "unit": "mm"}]}', "describes 11 observations but"),
+])
+def test_broken_meta_json_is_named(policy_copy, content, message):
+    (policy_copy / "meta.json").write_text(content)
+    with pytest.raises(PolicyError, match=message):
+        artifacts.load(policy_copy)
+
+
+def test_corrupt_normalisation_file(policy_copy):
+    (policy_copy / "vecnormalize.pkl").write_bytes(b"\x80\x04truncated")
+    with pytest.raises(PolicyError, match="vecnormalize.pkl.*corrupt"):
+        artifacts.load(policy_copy)
+
+
+def test_ship_copies_what_the_run_recorded(tmp_path, monkeypatch, policy_copy):
+    monkeypatch.setenv("MJENDO_POLICIES", str(tmp_path / "shipped"))
+    meta = json.loads((policy_copy / "meta.json").read_text())
+    meta["task"]["cable_mm_per_unit"] = 2.0  # a run made with other scales keeps them when shipped
+    (policy_copy / "meta.json").write_text(json.dumps(meta))
+    dest = artifacts.ship(policy_copy, "E")
+    assert json.loads((dest / "meta.json").read_text())["task"]["cable_mm_per_unit"] == 2.0
+    meta["timesteps"] = 0
+    (policy_copy / "meta.json").write_text(json.dumps(meta))
+    with pytest.raises(PolicyError, match="not a finished run"):
+        artifacts.ship(policy_copy, "E")

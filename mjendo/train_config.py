@@ -222,7 +222,7 @@ def read_yaml(path: Path) -> dict:
     try:
         raw = yaml.safe_load(path.read_text())
     except yaml.YAMLError as exc:
-        raise ConfigError(f"training config {path} is not valid YAML: {exc}") from exc
+        raise ConfigError(f"training config {path} is not valid YAML: {' '.join(str(exc).split())}") from exc
     if not isinstance(raw, dict) or not isinstance(raw.get("policies"), dict):
         raise ConfigError(f"training config {path} must be a YAML mapping with 'defaults' and 'policies' "
                           "(see train/policies.yaml)")

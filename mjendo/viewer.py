@@ -69,16 +69,6 @@ def scene_option() -> mujoco.MjvOption:
     return opt
 
 
-def project(point: np.ndarray, model: mujoco.MjModel, data: mujoco.MjData, camera: str,
-            width: int, height: int) -> tuple[float, float]:
-    """Pixel (column, row) of a world point in a fixed camera's image."""
-    cam = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, camera)
-    pos, rot = data.cam_xpos[cam], data.cam_xmat[cam].reshape(3, 3)
-    p = rot.T @ (point - pos)  # camera frame: x right, y up, looking along -z
-    f = 0.5 * height / np.tan(np.radians(model.cam_fovy[cam]) / 2)
-    return width / 2 + f * p[0] / -p[2], height / 2 - f * p[1] / -p[2]
-
-
 def _font(size: int):
     from PIL import ImageFont
 

@@ -216,6 +216,6 @@ def test_training_says_where_it_writes_and_how_to_use_the_result(short_run, tmp_
     res = _cli("--policy", "D", "--out", str(run.parent.parent), "--config", str(run.parent.parent / "policies.yaml"),
                "--timesteps", "512")
     assert res.returncode == 0, res.stderr
-    assert f"run folder: {run}" in res.stdout
+    assert f"run folder: {run}" in res.stdout and "eval_sr=nan" not in res.stdout
     for hint in (f"--policy {run}", f"mjendo.evaluation --policies {run}", f"mjendo.artifacts ship {run} D"):
         assert hint in res.stdout

@@ -4,6 +4,7 @@ import subprocess
 import sys
 
 import imageio.v2 as imageio
+import mujoco
 import numpy as np
 import pytest
 
@@ -11,7 +12,17 @@ from mjendo.baseline import DLSController
 from mjendo.config import ConfigError
 from mjendo.envs import EndoscopeEnv
 from mjendo.rollout import run
-from mjendo.viewer import project, record
+from mjendo.viewer import record
+
+
+def project(point: np.ndarray, model: mujoco.MjModel, data: mujoco.MjData, camera: str,
+            width: int, height: int) -> tuple[float, float]:
+    """Pixel (column, row) of a world point in a fixed camera's image."""
+    cam = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, camera)
+    pos, rot = data.cam_xpos[cam], data.cam_xmat[cam].reshape(3, 3)
+    p = rot.T @ (point - pos)  # camera frame: x right, y up, looking along -z
+    f = 0.5 * height / np.tan(np.radians(model.cam_fovy[cam]) / 2)
+    return width / 2 + f * p[0] / -p[2], height / 2 - f * p[1] / -p[2]
 
 
 def frames(path):

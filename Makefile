@@ -7,14 +7,14 @@ POLICY  ?= E
 ENV     ?=
 FIDELITY ?= fast
 
-.PHONY: setup test bench lint models train finetune ship eval video clean
+.PHONY: setup test bench lint models train finetune ship eval study video clean
 
 $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
 	# torch first: the CPU build 2.13.0 (an unpinned torch pulls a multi-GB CUDA build)
 	$(BIN)/pip install --quiet torch==2.13.0
-	$(BIN)/pip install --quiet -e '.[dev]'
+	$(BIN)/pip install --quiet -e '.[dev,study]'
 	touch $(STAMP)
 
 setup: $(STAMP)
@@ -56,6 +56,14 @@ clean:
 TRIALS ?= 200
 eval: $(STAMP)
 	$(BIN)/python -m mjendo.evaluation --trials $(TRIALS) --fidelity $(FIDELITY) $(if $(OUT),--out $(OUT))
+
+# The multi-seed study on Ray (local cluster, or RAY_ADDRESS / ADDRESS=host:port): trains what is missing,
+# resumes what was interrupted, skips what is finished, then reports across-seed intervals.
+POLICIES ?= D,E
+SEEDS ?= 0,1,2
+study: $(STAMP)
+	$(BIN)/python -m mjendo.study --policies $(POLICIES) --seeds $(SEEDS) --trials $(TRIALS) \
+	  $(if $(TIMESTEPS),--timesteps $(TIMESTEPS)) $(if $(OUT),--out $(OUT)) $(if $(ADDRESS),--address $(ADDRESS))
 
 # Headless recording of shipped policy E in DE.
 video: $(STAMP)

@@ -61,11 +61,11 @@ class _Appender:
     """A CSV log that survives a kill: opened for appending, flushed every row."""
 
     def __init__(self, path: Path, header: list[str]):
-        new = not path.exists()
+        new = not path.exists() or path.stat().st_size == 0  # a run killed before its first row left it empty
         self.f = open(path, "a", newline="")  # noqa: SIM115 (kept open for the run)
         self.w = csv.writer(self.f)
         if new:
-            self.w.writerow(header)
+            self.writerow(header)
 
     def writerow(self, row) -> None:
         self.w.writerow(row)
@@ -88,7 +88,7 @@ def periodic_evaluation(model, venv, cfg: TrainConfig, meta: dict) -> tuple[floa
     return float(np.mean(succ)), float(np.mean(err)), float(np.mean([r for _, r in results]))
 
 
-def _callbacks(cfg: TrainConfig, run: Path, meta: dict, start_steps: int):
+def _callbacks(cfg: TrainConfig, run: Path, meta: dict, start_steps: int, progress: bool = True):
     from stable_baselines3.common.callbacks import BaseCallback
     from tqdm import tqdm
 
@@ -103,7 +103,7 @@ def _callbacks(cfg: TrainConfig, run: Path, meta: dict, start_steps: int):
             self.next_eval = (start_steps // cfg.eval_every + 1) * cfg.eval_every
             self.next_ckpt = (start_steps // cfg.checkpoint_every + 1) * cfg.checkpoint_every
             self.bar = tqdm(total=cfg.total_timesteps, initial=start_steps, unit="step", desc=f"policy {cfg.policy}",
-                            dynamic_ncols=True, mininterval=2.0, file=sys.stdout)
+                            dynamic_ncols=True, mininterval=2.0, file=sys.stdout, disable=not progress)
             self.t0, self.s0 = time.time(), start_steps
             self.recent: list[float] = []
             self.last_eval: float | None = None
@@ -259,8 +259,9 @@ def run_folder(cfg: TrainConfig, out: Path, run_name: str | None) -> Path:
 def train(policy: str, timesteps: int | None = None, seed: int | None = None, n_envs: int | None = None,
           out: Path | None = None, run_name: str | None = None, fresh: bool = False,
           vec_env: str | None = None, ship: bool = False, config_file: Path | None = None,
-          fidelity: str | None = None, init_from: Path | None = None, learning_rate: float | None = None) -> Path:
-    """Train (or resume) one policy; returns the run folder."""
+          fidelity: str | None = None, init_from: Path | None = None, learning_rate: float | None = None,
+          progress: bool = True) -> Path:
+    """Train (or resume) one policy; returns the run folder (``progress=False``: no progress bar)."""
     cfg = load_config(policy, config_file or paths.TRAINING_CONFIG, total_timesteps=timesteps, seed=seed,
                       n_envs=n_envs, vec_env=vec_env, fidelity=fidelity, init_from=init_from,
                       learning_rate=learning_rate)
@@ -312,7 +313,7 @@ def train(policy: str, timesteps: int | None = None, seed: int | None = None, n_
         print(f"{run} is complete ({start} steps)")
         _finish(run, policy, ship)
         return run
-    cb = _callbacks(cfg, run, meta, start)
+    cb = _callbacks(cfg, run, meta, start, progress)
     # SIGTERM (e.g. a scheduler) stops like Ctrl-C: checkpoint, then exit.
     signal.signal(signal.SIGTERM, lambda *_: (_ for _ in ()).throw(KeyboardInterrupt()))
     t0 = time.time()

@@ -219,3 +219,16 @@ def test_training_says_where_it_writes_and_how_to_use_the_result(short_run, tmp_
     assert f"run folder: {run}" in res.stdout and "eval_sr=nan" not in res.stdout
     for hint in (f"--policy {run}", f"mjendo.evaluation --policies {run}", f"mjendo.artifacts ship {run} D"):
         assert hint in res.stdout
+
+
+def test_same_seed_same_machine_trains_bit_identical_weights(short_run, tmp_path):
+    # The reproducibility statement (docs/study.md): one machine, one seed, one set of versions.
+    import torch
+    from stable_baselines3 import PPO
+
+    config = short_run[0].parent.parent / "policies.yaml"
+    runs = [train("D", timesteps=256, out=tmp_path / name, config_file=config) for name in ("a", "b")]
+    a, b = (PPO.load(str(r / "model.zip"), device="cpu").policy.state_dict() for r in runs)
+    assert all(torch.equal(a[k], b[k]) for k in a)
+    ea, eb = ((r / "episodes.csv").read_text() for r in runs)
+    assert ea == eb

@@ -1,0 +1,119 @@
+"""The multi-seed study: the bootstrap on known answers, a tiny grid through Ray, resume after a kill, bad addresses."""
+
+import csv
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+import yaml
+
+from mjendo import stats
+from mjendo.config import ConfigError
+from mjendo.paths import TRAINING_CONFIG
+
+
+def test_bootstrap_on_known_answers():
+    # One seed that always succeeds and one that never does: resampling the two seeds gives a mean of
+    # 0, 0.5 or 1 with probabilities 1/4, 1/2, 1/4, so the 95 % interval is [0, 1] around 0.5.
+    est = stats.estimate([np.ones(500), np.zeros(500)])
+    assert est["mean"] == 0.5 and (est["low"], est["high"]) == (0.0, 1.0)
+    r = est["replicates"]
+    assert np.mean(r == 0.5) == pytest.approx(0.5, abs=0.03) and np.mean(r == 0.0) == pytest.approx(0.25, abs=0.03)
+    # Identical seeds at 80 % over 400 trials each: only trial noise is left; 3 seeds x 400 trials behave
+    # like 1200 trials, whose binomial 95 % half-width is 1.96 sqrt(0.16 / 1200) = 2.3 points.
+    same = [np.r_[np.ones(320), np.zeros(80)]] * 3
+    est = stats.estimate(same)
+    assert est["mean"] == pytest.approx(0.8)
+    assert (est["high"] - est["low"]) / 2 == pytest.approx(0.0226, abs=0.004)
+    # A difference of two identical estimates is centred on 0 and does not exclude it.
+    d = stats.difference(stats.estimate(same, seed=1), stats.estimate(same, seed=2))
+    assert d["low"] < 0 < d["high"] and not d["excludes_zero"]
+    # A clear difference does.
+    assert stats.difference(stats.estimate([np.ones(200)] * 3), est)["excludes_zero"]
+
+
+def test_continuous_metrics_bootstrap_too():
+    est = stats.estimate([np.full(50, 2.0), np.full(50, 4.0)])
+    assert est["mean"] == 3.0 and est["low"] == 2.0 and est["high"] == 4.0
+
+
+@pytest.fixture(scope="module")
+def tiny_config(tmp_path_factory):
+    raw = yaml.safe_load(TRAINING_CONFIG.read_text())
+    raw["defaults"].update(checkpoint_every=128, eval_every=512, eval_episodes=1)
+    raw["defaults"]["ppo"].update(n_steps=64, batch_size=64, n_epochs=1)
+    path = tmp_path_factory.mktemp("cfg") / "policies.yaml"
+    path.write_text(yaml.safe_dump(raw))
+    return path
+
+
+def test_a_tiny_grid_runs_on_ray_and_reports_intervals(tiny_config, tmp_path):
+    import ray
+
+    from mjendo.study import StudyConfig, study
+
+    cfg = StudyConfig(policies=("D",), seeds=(1, 2), timesteps=256, trials=3, envs=("DE", "UE1"),
+                      config=tiny_config, runs=tmp_path / "runs", out=tmp_path / "study")
+    try:
+        out = study(cfg, command="test")
+        assert ray.is_initialized()  # it went through Ray (a local cluster)
+    finally:
+        ray.shutdown()
+    with open(out / "summary.csv") as f:
+        rows = list(csv.DictReader(f))
+    assert {(r["policy"], r["env"], r["seeds"], r["trials_per_seed"]) for r in rows} == {
+        ("D", "DE", "2", "3"), ("D", "UE1", "2", "3")}
+    for r in rows:
+        assert float(r["sr_low"]) <= float(r["sr"]) <= float(r["sr_high"])
+    for seed in (1, 2):
+        assert (out / "seeds" / f"D_seed{seed}" / "study_trials.csv").exists()
+        assert (out / "seeds" / f"D_seed{seed}" / "meta.json").exists()
+    assert (out / "seeds.png").stat().st_size > 5000 and "seeds.png" in (out / "report.md").read_text()
+    # Finished trials are skipped when the study runs again: nothing is trained or evaluated again.
+    before = (tmp_path / "runs" / "D" / "seed1" / "study_trials.csv").stat().st_mtime_ns
+    try:
+        study(cfg, command="test again")
+    finally:
+        ray.shutdown()
+    assert (tmp_path / "runs" / "D" / "seed1" / "study_trials.csv").stat().st_mtime_ns == before
+
+
+def test_a_killed_trial_resumes_to_the_same_step_count(tiny_config, tmp_path):
+    import json
+
+    def cmd(out):
+        return [sys.executable, "-m", "mjendo.train", "--policy", "D", "--seed", "3", "--timesteps", "1024",
+                "--config", str(tiny_config), "--out", str(out)]
+
+    subprocess.run(cmd(tmp_path / "whole"), check=True, capture_output=True)
+    proc = subprocess.Popen(cmd(tmp_path / "killed"), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    ckpts = tmp_path / "killed" / "D" / "seed3" / "checkpoints"
+    deadline = time.time() + 300
+    while not list(ckpts.glob("model_*.zip")) and time.time() < deadline and proc.poll() is None:
+        time.sleep(0.2)
+    proc.send_signal(signal.SIGKILL)  # no chance to save: resume from the last checkpoint on disk
+    proc.wait()
+    assert not (tmp_path / "killed" / "D" / "seed3" / "model.zip").exists(), "the run finished before the kill"
+    subprocess.run(cmd(tmp_path / "killed"), check=True, capture_output=True)
+    steps = [json.loads((tmp_path / d / "D" / "seed3" / "meta.json").read_text())["timesteps"]
+             for d in ("whole", "killed")]
+    assert steps[0] == steps[1] == 1024
+
+
+def test_an_unreachable_cluster_address_is_a_clear_error(tmp_path):
+    from mjendo.study import StudyConfig, connect
+
+    with pytest.raises(ConfigError, match=r"cannot reach the Ray cluster at 127.0.0.1:9.*ray start --head"):
+        connect("127.0.0.1:9")
+    with pytest.raises(ConfigError, match="is not host:port"):
+        connect("nowhere")
+    res = subprocess.run([sys.executable, "-m", "mjendo.study", "--address", "127.0.0.1:9", "--timesteps", "64",
+                          "--runs", str(tmp_path)], capture_output=True, text=True, timeout=120)
+    assert res.returncode == 2 and "cannot reach the Ray cluster" in res.stderr and "Traceback" not in res.stderr
+    with pytest.raises(ConfigError, match="unknown policy"):
+        StudyConfig(policies=("Q",)).check()
+    with pytest.raises(ConfigError, match="distinct"):
+        StudyConfig(seeds=(1, 1)).check()

@@ -94,13 +94,17 @@ def finished(run: Path, budget: int) -> bool:
 def adopt_shipped(cfg: StudyConfig, policy: str, seed: int) -> bool:
     """Use the shipped policy as this seed's run when it is exactly that run (same seed, task and budget).
 
+    The budget is the run's configured total_timesteps (the shipped one trained for 1M steps is not a
+    2k-step smoke-test run).
+
     The shipped folder holds the files of a finished run (without its
     checkpoints), so the study need not train that seed again.
     """
     run, tc = run_folder(cfg, policy, seed), train_config(cfg, policy, seed)
     shipped = paths.policies_dir() / policy
     meta = artifacts.read_meta(shipped) if shipped.exists() else {}
-    if run.exists() or meta.get("seed") != seed or int(meta.get("timesteps", 0)) < tc.total_timesteps:
+    budget = meta.get("training", {}).get("total_timesteps")
+    if run.exists() or meta.get("seed") != seed or budget != tc.total_timesteps:
         return False
     if meta.get("task") != asdict(tc.task_config()) or meta.get("init_from"):
         return False

@@ -74,6 +74,7 @@ class EndoscopeEnv(gym.Env):
     | ``target_list`` | the env's | "A" (training) or "B" (held out) |
     | ``max_steps`` | 128 | truncation limit |
     | ``force_penalty`` | 0.0 | weight of the optional force penalty per newton |
+    | ``randomize_phase`` | True | start each episode at a random phase of the periodic load (False: phase 0) |
     | ``render_mode`` | None | "rgb_array" |
     | ``camera`` | "external" | "external", "tip_camera" or "both" (side by side) |
     | ``width``, ``height`` | 480, 360 | frame size in pixels (16-4096) |

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import json
 import os
 import shutil
 import socket
@@ -41,6 +42,11 @@ from mjendo.train_config import POLICY_NAMES
 from mjendo.train_config import load as load_config
 
 RESULTS_FILE = "study_trials.csv"
+VALIDATION_FILE = "study_validation.json"
+# Validation (choosing the seed to ship): trials in the policy's own training condition on seeds of their
+# own, disjoint from the evaluation trials (0..N-1) and from training's periodic evaluations (10,000,000+).
+VALIDATION_SEED = 20_000_000
+VALIDATION_TRIALS = 100
 RUNNING_MARK = ".study_running"
 COMPARISONS = (("C", "B"), ("E", "D"), ("E", "A"))  # paper: force sensing (SE, DE training) and contact use
 
@@ -61,6 +67,7 @@ class StudyConfig:
     cpus_per_trial: float = 1.0
     gpus_per_trial: float = 0.0
     address: str | None = None
+    ship_best: bool = False  # copy each policy's best-by-validation seed to models/policies/
 
     def check(self) -> None:
         bad = [p for p in self.policies if p not in POLICY_NAMES]
@@ -150,6 +157,7 @@ def trial(cfg: StudyConfig, policy: str, seed: int) -> list[dict]:
     run = run_folder(cfg, policy, seed)
     cached = _read_results(run, cfg)
     if cached is not None and finished(run, train_config(cfg, policy, seed).total_timesteps):
+        validate(cfg, policy, run)
         return cached
     run.mkdir(parents=True, exist_ok=True)
     mark = run / RUNNING_MARK
@@ -163,9 +171,34 @@ def trial(cfg: StudyConfig, policy: str, seed: int) -> list[dict]:
             rows += [{**asdict(t), "controller": policy, "seed_trained": seed, "fidelity": cfg.fidelity}
                      for t in trials]
         _write_rows(run / RESULTS_FILE, rows)
+        validate(cfg, policy, run)
         return rows
     finally:
         mark.unlink(missing_ok=True)
+
+
+def validate(cfg: StudyConfig, policy: str, run: Path) -> dict:
+    """Success rate and mean error on the validation trials in the training condition (cached in the run)."""
+    path = run / VALIDATION_FILE
+    if path.exists():
+        return json.loads(path.read_text())
+    env = train_config(cfg, policy, 0).env
+    seeds = [VALIDATION_SEED + i for i in range(VALIDATION_TRIALS)]
+    trials, _ = run_trials(str(run), env, seeds, fidelity=cfg.fidelity)
+    result = {"env": env, "fidelity": cfg.fidelity, "trials": len(trials), "first_seed": VALIDATION_SEED,
+              "success_rate": float(np.mean([t.success for t in trials])),
+              "mean_final_mm": float(np.mean([t.final_mm for t in trials]))}
+    path.write_text(json.dumps(result, indent=1) + "\n")
+    return result
+
+
+def best_seeds(cfg: StudyConfig) -> dict[str, tuple[int, dict]]:
+    """Per policy, the seed with the best validation success rate (then the smaller error)."""
+    best = {}
+    for p in cfg.policies:
+        scored = [(s, validate(cfg, p, run_folder(cfg, p, s))) for s in cfg.seeds]
+        best[p] = max(scored, key=lambda sv: (sv[1]["success_rate"], -sv[1]["mean_final_mm"]))
+    return best
 
 
 def _write_rows(path: Path, rows: list[dict]) -> None:
@@ -315,7 +348,7 @@ def write_outputs(cfg: StudyConfig, rows: list[dict], command: str, wall_s: floa
         d = seeds_dir / f"{p}_seed{s}"
         d.mkdir(parents=True, exist_ok=True)
         run = run_folder(cfg, p, s)
-        for name in (artifacts.META_FILE, RESULTS_FILE, "evaluations.csv"):
+        for name in (artifacts.META_FILE, RESULTS_FILE, VALIDATION_FILE, "evaluations.csv"):
             if (run / name).exists():
                 shutil.copy2(run / name, d / name)
     fig = figures.study_seeds(summary, out / "seeds.png")
@@ -342,6 +375,19 @@ def write_outputs(cfg: StudyConfig, rows: list[dict], command: str, wall_s: floa
                          f"{c['high']:+.1f}) | {'yes' if c['supported'] else 'no'} |")
         lines += ["", "Only differences whose interval excludes 0 are claimed; the others are not distinguishable "
                   "with these seeds and trials."]
+    best = best_seeds(cfg)
+    lines += ["", "## Validation: which seed is shipped", "",
+              f"{VALIDATION_TRIALS} trials per seed in the policy's training condition, on seeds "
+              f"{VALIDATION_SEED}.. (disjoint from the evaluation trials above).", "",
+              "| policy | seed | validation SR % | final error mm | best |", "|---|---|---|---|---|"]
+    for p in cfg.policies:
+        for seed in cfg.seeds:
+            v = validate(cfg, p, run_folder(cfg, p, seed))
+            mark = ("shipped" if cfg.ship_best else "yes") if best[p][0] == seed else ""
+            lines.append(f"| {p} | {seed} | {100 * v['success_rate']:.1f} | {v['mean_final_mm']:.1f} | {mark} |")
+    if cfg.ship_best:
+        for p, (seed, _) in best.items():
+            artifacts.ship(run_folder(cfg, p, seed), p)
     lines += ["", f"![Success rate per seed (dots) and across seeds (bar, 95 % CI)]({fig.name})", "",
               "*Success rate of every training seed (dots) and the mean over seeds with its 95 % stratified-"
               "bootstrap interval (black), per environment.*", ""]
@@ -380,10 +426,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cpus-per-trial", type=float, default=1.0)
     ap.add_argument("--gpus-per-trial", type=float, default=0.0)
     ap.add_argument("--address", help="Ray cluster (host:port or ray://host:10001); default: RAY_ADDRESS, else local")
+    ap.add_argument("--ship-best", action="store_true",
+                    help="copy each policy's best-by-validation seed to models/policies/")
     a = ap.parse_args(argv)
     cfg = StudyConfig(tuple(a.policies.split(",")), a.seeds, a.timesteps, a.trials, a.fidelity,
                       tuple(a.envs.split(",")) if a.envs else None, a.config, a.runs, a.out, a.cpus_per_trial,
-                      a.gpus_per_trial, a.address)
+                      a.gpus_per_trial, a.address, a.ship_best)
     command = "python -m mjendo.study " + " ".join(argv if argv is not None else sys.argv[1:])
     return cli.run(lambda: study(cfg, command), ConfigError, PolicyError)
 

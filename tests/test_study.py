@@ -72,6 +72,14 @@ def test_a_tiny_grid_runs_on_ray_and_reports_intervals(tiny_config, tmp_path):
         assert (out / "seeds" / f"D_seed{seed}" / "study_trials.csv").exists()
         assert (out / "seeds" / f"D_seed{seed}" / "meta.json").exists()
     assert (out / "seeds.png").stat().st_size > 5000 and "seeds.png" in (out / "report.md").read_text()
+    # Each seed is validated on trials of its own, and the best one is named (shipped with --ship-best).
+    from mjendo.study import VALIDATION_TRIALS, best_seeds
+
+    validation = {s: (out / "seeds" / f"D_seed{s}" / "study_validation.json") for s in (1, 2)}
+    assert all(v.exists() for v in validation.values())
+    best_seed, best = best_seeds(cfg)["D"]
+    assert best_seed in (1, 2) and best["trials"] == VALIDATION_TRIALS and best["env"] == "DE"
+    assert f"| D | {best_seed} |" in (out / "report.md").read_text()
     # Finished trials are skipped when the study runs again: nothing is trained or evaluated again.
     before = (tmp_path / "runs" / "D" / "seed1" / "study_trials.csv").stat().st_mtime_ns
     try:

@@ -14,7 +14,7 @@ $(STAMP): pyproject.toml
 	$(BIN)/pip install --quiet --upgrade pip
 	# torch first: the CPU build 2.13.0 (an unpinned torch pulls a multi-GB CUDA build)
 	$(BIN)/pip install --quiet torch==2.13.0
-	$(BIN)/pip install --quiet -e '.[dev,study]'
+	$(BIN)/pip install --quiet -e '.[dev,study,warp]'
 	touch $(STAMP)
 
 setup: $(STAMP)
@@ -36,7 +36,7 @@ models: $(STAMP)
 
 train: $(STAMP)
 	$(BIN)/python -m mjendo.train --policy $(POLICY) $(if $(TIMESTEPS),--timesteps $(TIMESTEPS)) \
-	  $(if $(SEED),--seed $(SEED)) $(if $(N_ENVS),--n-envs $(N_ENVS))
+	  $(if $(SEED),--seed $(SEED)) $(if $(N_ENVS),--n-envs $(N_ENVS)) $(if $(BACKEND),--backend $(BACKEND))
 
 # Copy a finished run into models/policies/<POLICY>/ (RUN= another run folder name than seed0).
 RUN ?= seed0

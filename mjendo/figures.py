@@ -61,7 +61,8 @@ def training_curve(run: Path | list[Path], out: Path, labels: list[str] | None =
         ax2.set(ylabel="success rate", ylim=(-0.02, 1.02), title=f"{lab}: success (< 3 mm)")
         for ax in (ax1, ax2):
             ax.grid(alpha=0.3)
-        ax2.legend(fontsize=7, loc="lower right")
+        if ax2.get_legend_handles_labels()[0]:
+            ax2.legend(fontsize=7, loc="lower right")
     for ax in axes[-1]:
         ax.set_xlabel("timesteps")
     fig.tight_layout()

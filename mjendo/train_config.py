@@ -80,6 +80,18 @@ class FinetuneArgs:
 
 
 @dataclass
+class BatchedArgs:
+    """What changes when a run trains on the batched MuJoCo Warp backend (``--backend warp``)."""
+
+    n_envs: int
+    """worlds stepped together on the device"""
+    total_timesteps: int
+    """budget: large batches need more samples than 2 CPU environments"""
+    ppo: dict[str, Any] = field(default_factory=dict)
+    """PPO fields that change with large batches (n_steps, batch_size, n_epochs, learning_rate, ...)"""
+
+
+@dataclass
 class TrainConfig:
     """One policy's resolved training run."""
 
@@ -111,6 +123,10 @@ class TrainConfig:
     """PPO arguments"""
     finetune: FinetuneArgs
     """the fine-tuning block, applied with init_from"""
+    batched: BatchedArgs
+    """the batched-backend block, applied with backend 'warp'"""
+    backend: str = "cpu"
+    """'cpu' (MuJoCo, one process per environment group) or 'warp' (MuJoCo Warp: all worlds on one device)"""
     task: dict[str, Any] = field(default_factory=dict)
     """TaskConfig fields other than env/fidelity/force_obs (action scales, max_steps, force_penalty, ...)"""
     init_from: str | None = None
@@ -126,6 +142,8 @@ class TrainConfig:
         if self.env not in CONDITIONS or self.fidelity not in FIDELITIES:
             raise ConfigError(f"policy {self.policy}: env must be one of {', '.join(CONDITIONS)} and fidelity one "
                               f"of {', '.join(FIDELITIES)}")
+        if self.backend not in ("cpu", "warp"):
+            raise ConfigError(f"backend must be 'cpu' or 'warp', not {self.backend!r}")
         if self.vec_env not in ("dummy", "subproc"):
             raise ConfigError(f"vec_env must be 'subproc' or 'dummy', not {self.vec_env!r}")
         if self.n_envs < 1:
@@ -252,6 +270,10 @@ def load(policy: str, path: Path, **overrides) -> TrainConfig:
         cfg.fidelity, cfg.total_timesteps = ft.fidelity, ft.total_timesteps
         cfg.ppo.learning_rate = ft.learning_rate
         cfg.init_from = str(given["init_from"])
+    if given.pop("backend", "cpu") == "warp":
+        cfg.backend = "warp"
+        cfg.n_envs, cfg.total_timesteps = cfg.batched.n_envs, cfg.batched.total_timesteps
+        cfg.ppo = from_dict(PPOArgs, {**dataclasses.asdict(cfg.ppo), **cfg.batched.ppo}, "batched.ppo")
     if "learning_rate" in given:
         cfg.ppo.learning_rate = _coerce(given.pop("learning_rate"), float, "--learning-rate")
     given.pop("init_from", None)

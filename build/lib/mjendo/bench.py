@@ -143,6 +143,27 @@ def fidelity_figure(env: str, fidelity: str) -> dict:
     return {"figure": "fidelity", "env": env, "fidelity": fidelity, **fid_protocols.motion_summary(env, fidelity)}
 
 
+def batched_figure(env: str, fidelity: str, worlds: int, steps: int) -> dict:
+    """Env steps/s of the batched backend (task logic included) at one world count, on the device it finds."""
+    from mjendo.batch import BatchedNavigation
+
+    b = BatchedNavigation(worlds, env=env, fidelity=fidelity)
+    b.reset()
+    rng = np.random.default_rng(0)
+    actions = rng.uniform(-0.4, 0.4, (steps + 2, worlds, 5))
+    actions[..., 4] = np.abs(actions[..., 4])  # keep inserting: contacts happen
+    for a in actions[:2]:  # compile and warm up
+        b.step(a)
+    b._wp.synchronize()
+    t0 = time.perf_counter()
+    for a in actions[2:]:
+        b.step(a)
+    b._wp.synchronize()
+    rate = steps * worlds / (time.perf_counter() - t0)
+    return {"figure": "batched", "env": env, "fidelity": fidelity, "worlds": worlds, "device": b.wp_device,
+            "env_steps_per_s": rate, "physics_steps_per_s": rate * b.core.substeps}
+
+
 def _child(args) -> None:
     if args.figure == "physics":
         out = physics_figure(args.env, args.fidelity, args.repeats, args.seconds)
@@ -152,6 +173,8 @@ def _child(args) -> None:
         out = training_figure(args.vec_env, args.steps, args.n_envs)
     elif args.figure == "env":
         out = env_figure(args.env, args.fidelity, args.repeats, args.steps)
+    elif args.figure == "batched":
+        out = batched_figure(args.env, args.fidelity, args.worlds, args.steps)
     else:
         out = fidelity_figure(args.env, args.fidelity)
     print(json.dumps(out))
@@ -164,6 +187,31 @@ def _run(argv: list[str]) -> dict:
     if res.returncode:
         raise RuntimeError(f"bench figure {argv} failed:\n{res.stderr[-2000:]}")
     return json.loads(res.stdout.strip().splitlines()[-1])
+
+
+def _has_warp() -> bool:
+    import importlib.util
+
+    return importlib.util.find_spec("mujoco_warp") is not None
+
+
+def _batched_table(max_worlds: int | None) -> None:
+    """MuJoCo Warp: env steps/s (task logic included) against the number of worlds, DE fast and full."""
+    import warp as wp
+
+    from mjendo.batch import init_quietly
+
+    init_quietly(wp)
+    gpu = wp.is_cuda_available()
+    top = max_worlds or (8192 if gpu else 8)
+    counts = [n for n in (1, 2, 8, 64, 256, 1024, 2048, 4096, 8192) if n <= top]
+    print(f"\n{'batched (MuJoCo Warp)':<24}{'worlds':>8}{'env steps/s':>14}{'physics steps/s':>18}   device")
+    for fid in ("fast", "full"):
+        for n in counts:
+            r = _run(["--figure", "batched", "--env", "DE", "--fidelity", fid, "--worlds", str(n), "--steps",
+                      "20" if gpu else "3"])
+            print(f"{'DE ' + fid:<24}{n:>8}{r['env_steps_per_s']:>14.0f}{r['physics_steps_per_s']:>18.0f}   "
+                  f"{r['device']}", flush=True)
 
 
 def _fidelity_table() -> None:
@@ -186,7 +234,11 @@ def _fidelity_table() -> None:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m mjendo.bench", description=__doc__)
     ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
-    ap.add_argument("--figure", default="physics", choices=["physics", "env", "fidelity", "training", "video"])
+    ap.add_argument("--figure", default="physics",
+                    choices=["physics", "env", "fidelity", "training", "video", "batched"])
+    ap.add_argument("--worlds", type=int, default=1, help="batched figure: worlds")
+    ap.add_argument("--max-worlds", type=int, help="batched figures: largest world count (default: 8 on a CPU, "
+                    "8192 on a GPU)")
     ap.add_argument("--vec-env", default="subproc", choices=["subproc", "dummy"])
     ap.add_argument("--n-envs", type=int, help="training figure: environments (default: policy E's config)")
     ap.add_argument("--env", default="DE")
@@ -194,7 +246,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--seconds", type=float, default=1.0, help="simulated seconds per physics repeat")
     ap.add_argument("--steps", type=int, default=200, help="env steps per env repeat")
-    ap.add_argument("--only", choices=["physics", "env", "fidelity", "training", "video"],
+    ap.add_argument("--only", choices=["physics", "env", "fidelity", "training", "video", "batched"],
                     help="run one group of figures")
     args = ap.parse_args(argv)
     if args.child:
@@ -234,6 +286,8 @@ def main(argv: list[str] | None = None) -> int:
               f"({r['frames']} frames)", flush=True)
     if args.only in (None, "fidelity"):
         _fidelity_table()
+    if args.only == "batched" or (args.only is None and _has_warp()):
+        _batched_table(args.max_worlds)
     return 0
 
 

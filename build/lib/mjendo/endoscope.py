@@ -104,7 +104,8 @@ def add_endoscope(spec: mujoco.MjSpec, cfg: Endoscope, entry: np.ndarray, axis: 
         if last:
             body.add_site(name=TIP_SITE, pos=[0, 0, length], size=[1e-3, 0, 0], rgba=[1, 0.6, 0, 1])
             # Eye-in-hand camera looking along the tip axis (MuJoCo cameras look along -z).
-            body.add_camera(name=TIP_CAMERA, pos=[0, 0, length], quat=[0, 1, 0, 0], fovy=100)
+            # 4 mm behind the tip face: a lens flush with the face is inside the wall whenever the tip touches it.
+            body.add_camera(name=TIP_CAMERA, pos=[0, 0, length - 0.004], quat=[0, 1, 0, 0], fovy=100)
             # The endoscope's own light at its tip, as on a real scope (visual only): without it the
             # tip camera looks into a dark, back-lit lumen.
             body.add_light(name=TIP_LIGHT, pos=[0, 0, length], dir=[0, 0, 1], cutoff=70, exponent=2,

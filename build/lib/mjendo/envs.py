@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import atexit
+import weakref
+
 import gymnasium as gym
 import mujoco
 import numpy as np
@@ -11,6 +14,14 @@ from mjendo.endoscope import TIP_CAMERA
 from mjendo.task import NavigationTask
 
 CAMERAS = ("external", TIP_CAMERA)
+# Envs holding a renderer: closed at exit while OpenGL is still there (else EGL prints errors on teardown).
+# The hook is registered after the first renderer exists, so it runs before MuJoCo's own EGL shutdown.
+_RENDERING: weakref.WeakSet = weakref.WeakSet()
+
+
+def _close_renderers() -> None:
+    for env in list(_RENDERING):
+        env.close()
 
 
 class EndoscopeEnv(gym.Env):
@@ -63,6 +74,7 @@ class EndoscopeEnv(gym.Env):
     | ``target_list`` | the env's | "A" (training) or "B" (held out) |
     | ``max_steps`` | 128 | truncation limit |
     | ``force_penalty`` | 0.0 | weight of the optional force penalty per newton |
+    | ``randomize_phase`` | True | start each episode at a random phase of the periodic load (False: phase 0) |
     | ``render_mode`` | None | "rgb_array" |
     | ``camera`` | "external" | "external", "tip_camera" or "both" (side by side) |
     | ``width``, ``height`` | 480, 360 | frame size in pixels (16-4096) |
@@ -116,6 +128,10 @@ class EndoscopeEnv(gym.Env):
             return None
         if self._renderer is None:
             self._renderer = mujoco.Renderer(self.task.sim.model, self.height, self.width)
+            if not _RENDERING:
+                atexit.unregister(_close_renderers)
+                atexit.register(_close_renderers)
+            _RENDERING.add(self)
         cams = CAMERAS if self.camera == "both" else (self.camera,)
         frames = []
         for cam in cams:

@@ -61,7 +61,8 @@ def training_curve(run: Path | list[Path], out: Path, labels: list[str] | None =
         ax2.set(ylabel="success rate", ylim=(-0.02, 1.02), title=f"{lab}: success (< 3 mm)")
         for ax in (ax1, ax2):
             ax.grid(alpha=0.3)
-        ax2.legend(fontsize=7, loc="lower right")
+        if ax2.get_legend_handles_labels()[0]:
+            ax2.legend(fontsize=7, loc="lower right")
     for ax in axes[-1]:
         ax.set_xlabel("timesteps")
     fig.tight_layout()
@@ -171,6 +172,33 @@ def success_bars(rows: list[dict], out: Path) -> Path:
            title="Success rate per environment (80-step trials, final error < 3 mm)")
     ax.legend(handles=handles, fontsize=8, loc="upper left", bbox_to_anchor=(1.005, 1.0), title="policy")
     ax.grid(axis="y", alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(out, dpi=120)
+    plt.close(fig)
+    return out
+
+
+def study_seeds(summary: list[dict], out: Path) -> Path:
+    """One panel per environment: every seed's success rate (dots) and the across-seed mean with its interval."""
+    plt = _plt()
+    envs = [e for e in ("FE", "SE", "DE", "UE1", "UE2") if any(r["env"] == e for r in summary)]
+    policies = list(dict.fromkeys(r["policy"] for r in summary))
+    fig, axes = plt.subplots(1, len(envs), figsize=(2.6 * len(envs) + 1, 3.6), sharey=True, squeeze=False)
+    for ax, env in zip(axes[0], envs, strict=True):
+        for i, pol in enumerate(policies):
+            r = next((r for r in summary if r["policy"] == pol and r["env"] == env), None)
+            if r is None:
+                continue
+            per_seed = [float(x) for x in str(r["sr_per_seed"]).split()]
+            jitter = np.linspace(-0.12, 0.12, len(per_seed)) if len(per_seed) > 1 else [0.0]
+            ax.plot(i + np.asarray(jitter), per_seed, "o", color=f"C{i}", alpha=0.7, ms=5)
+            ax.errorbar(i + 0.3, r["sr"], yerr=[[r["sr"] - r["sr_low"]], [r["sr_high"] - r["sr"]]], fmt="s",
+                        color="k", ms=5, capsize=3)
+        ax.set_xticks(range(len(policies)), policies)
+        ax.set(title=env, xlabel="policy", xlim=(-0.5, len(policies) - 0.3))
+        ax.grid(axis="y", alpha=0.3)
+    axes[0][0].set_ylabel("success rate %")
+    fig.suptitle("Success rate per training seed (dots) and across seeds (black: mean, 95 % CI)", fontsize=10)
     fig.tight_layout()
     fig.savefig(out, dpi=120)
     plt.close(fig)

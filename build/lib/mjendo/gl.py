@@ -11,7 +11,8 @@ class NoOpenGLError(RuntimeError):
 
 
 NO_GL_HELP = ("no OpenGL backend for headless rendering: install EGL (Debian/Ubuntu: "
-              "`apt-get install libegl1`) or OSMesa (`apt-get install libosmesa6`, then MUJOCO_GL=osmesa)")
+              "`apt-get install libegl1`) or OSMesa (`apt-get install libosmesa6`, then MUJOCO_GL=osmesa); "
+              "if mujoco was imported before mjendo, set MUJOCO_GL=egl before starting Python")
 
 
 def choose_backend() -> str | None:

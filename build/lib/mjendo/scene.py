@@ -32,6 +32,7 @@ FLEX = "stomach"
 LOAD = "periodic_load"
 TARGET_BODY = "target"
 STOMACH_GEOM_GROUP = 2
+BACKDROP_GROUP = 3  # the picture's backdrop: shown by the external camera, not by the scope's
 
 
 def scene_name(cfg: SceneConfig) -> str:
@@ -63,7 +64,7 @@ def _header(cfg: SceneConfig) -> str:
     <camera name="external" pos="0.025 -0.31 -0.085" xyaxes="1 0 0 0 0 1" fovy="45"/>
     <!-- Visual-only backdrop behind the stomach, for contrast in pictures and videos. -->
     <geom name="backdrop" type="plane" size="0.5 0.5 0.01" pos="0.025 0.25 -0.085" zaxis="0 -1 0"
-          rgba="0.16 0.18 0.22 1" contype="0" conaffinity="0"/>
+          rgba="0.16 0.18 0.22 1" contype="0" conaffinity="0" group="{BACKDROP_GROUP}"/>
   </worldbody>
 </mujoco>"""
 

@@ -230,7 +230,7 @@ class NavigationTask:
         dist = float(to_mm(np.sqrt(delta @ delta)))
         ok = instability is None
         success = dist < PAPER_SUCCESS_MM and ok
-        exited = float(to_mm((tip - self.origin) @ self.axis)) < PAPER_EXIT_X_MM and ok
+        exited = self.tip_x_mm() < PAPER_EXIT_X_MM and ok
         self.sim.set_target_marker(target, TARGET_YELLOW if success else TARGET_WHITE)
         terms = {
             "reward_distance": -dist,

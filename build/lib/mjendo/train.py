@@ -61,11 +61,11 @@ class _Appender:
     """A CSV log that survives a kill: opened for appending, flushed every row."""
 
     def __init__(self, path: Path, header: list[str]):
-        new = not path.exists()
+        new = not path.exists() or path.stat().st_size == 0  # a run killed before its first row left it empty
         self.f = open(path, "a", newline="")  # noqa: SIM115 (kept open for the run)
         self.w = csv.writer(self.f)
         if new:
-            self.w.writerow(header)
+            self.writerow(header)
 
     def writerow(self, row) -> None:
         self.w.writerow(row)
@@ -88,7 +88,7 @@ def periodic_evaluation(model, venv, cfg: TrainConfig, meta: dict) -> tuple[floa
     return float(np.mean(succ)), float(np.mean(err)), float(np.mean([r for _, r in results]))
 
 
-def _callbacks(cfg: TrainConfig, run: Path, meta: dict, start_steps: int):
+def _callbacks(cfg: TrainConfig, run: Path, meta: dict, start_steps: int, progress: bool = True):
     from stable_baselines3.common.callbacks import BaseCallback
     from tqdm import tqdm
 
@@ -103,7 +103,7 @@ def _callbacks(cfg: TrainConfig, run: Path, meta: dict, start_steps: int):
             self.next_eval = (start_steps // cfg.eval_every + 1) * cfg.eval_every
             self.next_ckpt = (start_steps // cfg.checkpoint_every + 1) * cfg.checkpoint_every
             self.bar = tqdm(total=cfg.total_timesteps, initial=start_steps, unit="step", desc=f"policy {cfg.policy}",
-                            dynamic_ncols=True, mininterval=2.0, file=sys.stdout)
+                            dynamic_ncols=True, mininterval=2.0, file=sys.stdout, disable=not progress)
             self.t0, self.s0 = time.time(), start_steps
             self.recent: list[float] = []
             self.last_eval: float | None = None
@@ -203,13 +203,20 @@ def learning_rate_schedule(cfg: TrainConfig):
     return lambda _remaining: lr0
 
 
+def torch_device(cfg: TrainConfig) -> str:
+    """PPO's device: the GPU when the physics runs there (batched backend), else the CPU (small MLP, 2 envs)."""
+    import torch
+
+    return "cuda" if cfg.backend == "warp" and torch.cuda.is_available() else "cpu"
+
+
 def build_ppo(cfg: TrainConfig, venv, tensorboard_log: str | None = None):
     """A fresh PPO from a resolved config: the one place the config's PPO fields become SB3 arguments."""
     import torch
     from stable_baselines3 import PPO
 
     p = cfg.ppo
-    return PPO("MlpPolicy", venv, seed=cfg.seed, device="cpu", verbose=0, tensorboard_log=tensorboard_log,
+    return PPO("MlpPolicy", venv, seed=cfg.seed, device=torch_device(cfg), verbose=0, tensorboard_log=tensorboard_log,
                learning_rate=learning_rate_schedule(cfg), n_steps=p.n_steps, batch_size=p.batch_size,
                n_epochs=p.n_epochs, gamma=p.gamma, gae_lambda=p.gae_lambda, clip_range=p.clip_range,
                ent_coef=p.ent_coef,
@@ -230,7 +237,7 @@ def _start_from(cfg: TrainConfig, venv):
         venv = VecNormalize.load(str(src / NORM_FILE), venv)  # keeps adapting to the new stomach
         venv.training = True
     schedule = learning_rate_schedule(cfg)
-    model = PPO.load(str(src / MODEL_FILE), env=venv, device="cpu",
+    model = PPO.load(str(src / MODEL_FILE), env=venv, device=torch_device(cfg),
                      custom_objects={"learning_rate": schedule, "lr_schedule": schedule})
     model.num_timesteps = 0  # this run's budget counts from here
     return model
@@ -259,11 +266,12 @@ def run_folder(cfg: TrainConfig, out: Path, run_name: str | None) -> Path:
 def train(policy: str, timesteps: int | None = None, seed: int | None = None, n_envs: int | None = None,
           out: Path | None = None, run_name: str | None = None, fresh: bool = False,
           vec_env: str | None = None, ship: bool = False, config_file: Path | None = None,
-          fidelity: str | None = None, init_from: Path | None = None, learning_rate: float | None = None) -> Path:
-    """Train (or resume) one policy; returns the run folder."""
+          fidelity: str | None = None, init_from: Path | None = None, learning_rate: float | None = None,
+          progress: bool = True, backend: str | None = None) -> Path:
+    """Train (or resume) one policy; returns the run folder (``progress=False``: no progress bar)."""
     cfg = load_config(policy, config_file or paths.TRAINING_CONFIG, total_timesteps=timesteps, seed=seed,
                       n_envs=n_envs, vec_env=vec_env, fidelity=fidelity, init_from=init_from,
-                      learning_rate=learning_rate)
+                      learning_rate=learning_rate, backend=backend)
     run = run_folder(cfg, out or paths.RUNS, run_name)
     _writable(run)
     if fresh and run.exists():
@@ -278,8 +286,13 @@ def train(policy: str, timesteps: int | None = None, seed: int | None = None, n_
 
     torch.set_num_threads(1)
     meta = {"policy": policy, "seed": cfg.seed, "init_from": cfg.init_from, **artifacts.task_meta(cfg.task_config())}
-    Vec = SubprocVecEnv if cfg.vec_env == "subproc" and cfg.n_envs > 1 else DummyVecEnv
-    venv = Vec([make_env(cfg, i) for i in range(cfg.n_envs)])
+    if cfg.backend == "warp":
+        from mjendo.batch import vec_env
+
+        venv = vec_env(cfg.n_envs, cfg.task_config(), seed=cfg.seed)
+    else:
+        Vec = SubprocVecEnv if cfg.vec_env == "subproc" and cfg.n_envs > 1 else DummyVecEnv
+        venv = Vec([make_env(cfg, i) for i in range(cfg.n_envs)])
     ckpt = latest_checkpoint(run)
     if ckpt is not None:
         steps = int(CKPT_RE.fullmatch(ckpt.name).group(1))
@@ -287,7 +300,7 @@ def train(policy: str, timesteps: int | None = None, seed: int | None = None, n_
         try:
             if cfg.normalize:
                 venv = VecNormalize.load(str(norm), venv)
-            model = PPO.load(str(ckpt), env=venv, device="cpu")
+            model = PPO.load(str(ckpt), env=venv, device=torch_device(cfg))
         except Exception as exc:
             venv.close()
             files = f"{ckpt} (with {norm.name})" if cfg.normalize else str(ckpt)
@@ -312,7 +325,7 @@ def train(policy: str, timesteps: int | None = None, seed: int | None = None, n_
         print(f"{run} is complete ({start} steps)")
         _finish(run, policy, ship)
         return run
-    cb = _callbacks(cfg, run, meta, start)
+    cb = _callbacks(cfg, run, meta, start, progress)
     # SIGTERM (e.g. a scheduler) stops like Ctrl-C: checkpoint, then exit.
     signal.signal(signal.SIGTERM, lambda *_: (_ for _ in ()).throw(KeyboardInterrupt()))
     t0 = time.time()
@@ -365,9 +378,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--init-from", type=Path, metavar="POLICY_DIR",
                     help="fine-tune a trained policy (e.g. models/policies/E) with the config's finetune block")
     ap.add_argument("--learning-rate", type=float)
+    ap.add_argument("--backend", choices=["cpu", "warp"],
+                    help="warp: every environment a world of MuJoCo Warp on the GPU (the config's batched block)")
     a = ap.parse_args(argv)
     return cli.run(lambda: train(a.policy, a.timesteps, a.seed, a.n_envs, a.out, a.run, a.fresh, a.vec_env, a.ship,
-                                 a.config, a.fidelity, a.init_from, a.learning_rate), ConfigError, PolicyError)
+                                 a.config, a.fidelity, a.init_from, a.learning_rate, backend=a.backend),
+                   ConfigError, PolicyError)
 
 
 if __name__ == "__main__":

@@ -27,6 +27,7 @@ from mjendo.endoscope import TIP_CAMERA
 from mjendo.envs import EndoscopeEnv
 from mjendo.gl import NO_GL_HELP, NoOpenGLError
 from mjendo.policies import PolicyError, force_obs_of, load_controller
+from mjendo.scene import BACKDROP_GROUP
 from mjendo.task import NavigationTask
 
 CAMERA_NAMES = {"external": "external", "tip": TIP_CAMERA}
@@ -63,20 +64,10 @@ def add_resultant_arrow(scene: mujoco.MjvScene, task: NavigationTask) -> None:
 def scene_option() -> mujoco.MjvOption:
     opt = mujoco.MjvOption()
     opt.flags[mujoco.mjtVisFlag.mjVIS_CONTACTFORCE] = True
-    for g in (0, 1, 2):
+    for g in (0, 1, 2, BACKDROP_GROUP):
         opt.geomgroup[g] = True
     opt.sitegroup[:] = [1, 1, 1, 0, 0, 0]  # hide cable routing sites
     return opt
-
-
-def project(point: np.ndarray, model: mujoco.MjModel, data: mujoco.MjData, camera: str,
-            width: int, height: int) -> tuple[float, float]:
-    """Pixel (column, row) of a world point in a fixed camera's image."""
-    cam = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, camera)
-    pos, rot = data.cam_xpos[cam], data.cam_xmat[cam].reshape(3, 3)
-    p = rot.T @ (point - pos)  # camera frame: x right, y up, looking along -z
-    f = 0.5 * height / np.tan(np.radians(model.cam_fovy[cam]) / 2)
-    return width / 2 + f * p[0] / -p[2], height / 2 - f * p[1] / -p[2]
 
 
 def _font(size: int):
@@ -110,7 +101,6 @@ def caption(frame: np.ndarray, lines: list[str], corner: str = "bottom-left") ->
 
 
 PANE_TITLES = {"external": "external view", TIP_CAMERA: "tip camera (light at the tip)"}
-TIP_VIEW_MARKER_M = 0.001  # in the tip camera the 3 mm target sphere fills the view: a 1 mm dot instead
 
 
 class Recorder:
@@ -127,6 +117,11 @@ class Recorder:
         except Exception as exc:
             raise NoOpenGLError(f"{NO_GL_HELP} (renderer failed: {exc})") from exc
         self.option = scene_option()
+        self.tip_option = scene_option()
+        self.tip_option.flags[mujoco.mjtVisFlag.mjVIS_CONTACTFORCE] = False
+        self.tip_option.geomgroup[BACKDROP_GROUP] = False
+        self.tip_option.sitegroup[:] = 0
+        self.tip_option.tendongroup[:] = 0
         flags = self.renderer.scene.flags
         for flag in (mujoco.mjtRndFlag.mjRND_SHADOW, mujoco.mjtRndFlag.mjRND_REFLECTION,
                      mujoco.mjtRndFlag.mjRND_SKYBOX):
@@ -134,18 +129,20 @@ class Recorder:
 
     def _view(self, cam: str) -> np.ndarray:
         task = self.env.task
-        m = task.sim.model
-        site = task.sim.target_site
-        size = m.site_size[site, 0]
-        if cam == TIP_CAMERA:
-            m.site_size[site, 0] = TIP_VIEW_MARKER_M
-        try:
+        if cam != TIP_CAMERA:
             self.renderer.update_scene(task.sim.data, camera=cam, scene_option=self.option)
+            add_resultant_arrow(self.renderer.scene, task)
+            return self.renderer.render()
+        # What the scope's own camera sees: an opaque wall lit by the tip light; no target marker (it would
+        # fill the view near the wall), tip marker, cables, force arrows or backdrop.
+        m = task.sim.model
+        alpha = m.flex_rgba[:, 3].copy()
+        m.flex_rgba[:, 3] = 1.0
+        try:
+            self.renderer.update_scene(task.sim.data, camera=cam, scene_option=self.tip_option)
         finally:
-            m.site_size[site, 0] = size
-        add_resultant_arrow(self.renderer.scene, task)
-        view = self.renderer.render()
-        return caption(view, [PANE_TITLES[cam]], corner="top-left") if len(self.cams) > 1 else view
+            m.flex_rgba[:, 3] = alpha
+        return self.renderer.render()
 
     def frame(self, info: dict, episode_time: float) -> np.ndarray:
         task = self.env.task
@@ -154,7 +151,10 @@ class Recorder:
                  f"distance {info.get('distance_mm', task.distance_mm()):5.1f} mm",
                  f"force {f:5.2f} N" + (" contact" if info.get("contact") else ""),
                  "SUCCESS: within 3 mm" if info.get("is_success") else ""]
-        return caption(np.concatenate([self._view(c) for c in self.cams], axis=1), lines)
+        views = [self._view(c) for c in self.cams]
+        if len(views) > 1:
+            views = [caption(v, [PANE_TITLES[c]], corner="top-left") for v, c in zip(views, self.cams, strict=True)]
+        return caption(np.concatenate(views, axis=1), lines)
 
     def close(self) -> None:
         self.renderer.close()

@@ -1,0 +1,440 @@
+"""``make study`` / ``python -m mjendo.study``: the paper's comparisons over several training seeds, on Ray.
+
+Each (policy, seed) of the grid is one Ray task that trains the policy (or
+resumes its run folder ``runs/<P>/seed<N>/`` from the last checkpoint, or
+skips training when the run is finished) and then evaluates the final
+policy in every environment of the study, writing ``study_trials.csv``
+into the run folder. A finished trial is not run again: killing the study
+and running the same command resumes where it stopped. Tasks declare their
+resources (``--cpus-per-trial``, ``--gpus-per-trial``); ``ray.init()``
+starts a local cluster on a laptop, ``--address`` (or ``RAY_ADDRESS``)
+connects to a running cluster.
+
+The analysis (:mod:`mjendo.stats`) gives per policy and environment the
+success rate with a 95 % interval over seeds and trials (stratified
+bootstrap), mean error and force, and the paper's comparisons C - B, E - D,
+E - A as differences with intervals. Writes ``summary.csv``,
+``comparisons.csv``, ``report.md``, ``seeds.png`` and, per seed, its
+``meta.json`` and trials, into ``--out`` (default ``runs/study``;
+``eval/study`` is the committed study).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import os
+import shutil
+import socket
+import sys
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from mjendo import artifacts, cli, paths, stats
+from mjendo.artifacts import PolicyError
+from mjendo.config import ConfigError
+from mjendo.evaluation import cells, run_trials
+from mjendo.train_config import POLICY_NAMES
+from mjendo.train_config import load as load_config
+
+RESULTS_FILE = "study_trials.csv"
+VALIDATION_FILE = "study_validation.json"
+# Validation (choosing the seed to ship): trials in the policy's own training condition on seeds of their
+# own, disjoint from the evaluation trials (0..N-1) and from training's periodic evaluations (10,000,000+).
+VALIDATION_SEED = 20_000_000
+VALIDATION_TRIALS = 100
+RUNNING_MARK = ".study_running"
+COMPARISONS = (("C", "B"), ("E", "D"), ("E", "A"))  # paper: force sensing (SE, DE training) and contact use
+
+
+@dataclass(frozen=True)
+class StudyConfig:
+    """One study grid and where it runs."""
+
+    policies: tuple[str, ...] = ("D", "E")
+    seeds: tuple[int, ...] = (0, 1, 2)
+    timesteps: int | None = None  # None: each policy's budget in the training config
+    trials: int = 200  # evaluation trials per environment and seed
+    fidelity: str = "fast"  # stomach the final policies are evaluated in
+    envs: tuple[str, ...] | None = None  # None: the evaluation study's environments
+    config: Path = paths.TRAINING_CONFIG
+    runs: Path = paths.RUNS
+    out: Path = paths.RUNS / "study"
+    cpus_per_trial: float = 1.0
+    gpus_per_trial: float = 0.0
+    address: str | None = None
+    ship_best: bool = False  # copy each policy's best-by-validation seed to models/policies/
+
+    def check(self) -> None:
+        bad = [p for p in self.policies if p not in POLICY_NAMES]
+        if bad or not self.policies:
+            raise ConfigError(f"unknown policy {bad[0] if bad else ''!r}; valid: {', '.join(POLICY_NAMES)}")
+        if not self.seeds or min(self.seeds) < 0 or len(set(self.seeds)) != len(self.seeds):
+            raise ConfigError(f"seeds must be distinct whole numbers >= 0, got {list(self.seeds)}")
+        if self.trials < 1 or (self.timesteps is not None and self.timesteps < 1):
+            raise ConfigError("--trials and --timesteps must be >= 1")
+        if self.cpus_per_trial <= 0 or self.gpus_per_trial < 0:
+            raise ConfigError("--cpus-per-trial must be > 0 and --gpus-per-trial >= 0")
+        for p in self.policies:
+            load_config(p, self.config, total_timesteps=self.timesteps)
+
+
+def train_config(cfg: StudyConfig, policy: str, seed: int):
+    return load_config(policy, cfg.config, seed=seed, total_timesteps=cfg.timesteps)
+
+
+def run_folder(cfg: StudyConfig, policy: str, seed: int) -> Path:
+    from mjendo.train import run_folder as folder
+
+    return folder(train_config(cfg, policy, seed), cfg.runs, None)
+
+
+def finished(run: Path, budget: int) -> bool:
+    meta = artifacts.read_meta(run) if run.exists() else {}
+    return (run / artifacts.MODEL_FILE).exists() and int(meta.get("timesteps", 0)) >= budget
+
+
+def adopt_shipped(cfg: StudyConfig, policy: str, seed: int) -> bool:
+    """Use the shipped policy as this seed's run when it is exactly that run (same seed, task and budget).
+
+    The budget is the run's configured total_timesteps (the shipped one trained for 1M steps is not a
+    2k-step smoke-test run).
+
+    The shipped folder holds the files of a finished run (without its
+    checkpoints), so the study need not train that seed again.
+    """
+    run, tc = run_folder(cfg, policy, seed), train_config(cfg, policy, seed)
+    shipped = paths.policies_dir() / policy
+    meta = artifacts.read_meta(shipped) if shipped.exists() else {}
+    budget = meta.get("training", {}).get("total_timesteps")
+    if run.exists() or meta.get("seed") != seed or budget != tc.total_timesteps:
+        return False
+    if meta.get("task") != asdict(tc.task_config()) or meta.get("init_from"):
+        return False
+    run.mkdir(parents=True)
+    for name in (artifacts.META_FILE, artifacts.CONFIG_FILE, artifacts.MODEL_FILE, artifacts.NORM_FILE,
+                 *artifacts.LOG_FILES):
+        if (shipped / name).exists():
+            shutil.copy2(shipped / name, run / name)
+    (run / "ADOPTED").write_text(f"copied from {shipped} by mjendo.study: the shipped policy is this seed's run\n")
+    return True
+
+
+def eval_seeds(cfg: StudyConfig) -> list[int]:
+    """The evaluation study's trial seeds (mjendo.evaluation, seed 0): never used for training or tuning."""
+    return [i for i in range(cfg.trials)]
+
+
+def _read_results(run: Path, cfg: StudyConfig) -> list[dict] | None:
+    path = run / RESULTS_FILE
+    if not path.exists():
+        return None
+    with open(path) as f:
+        rows = list(csv.DictReader(f))
+    envs = {r["env"] for r in rows}
+    want = {e for _, e in _cells(cfg, rows[0]["controller"] if rows else "")}
+    if not rows or any(r["fidelity"] != cfg.fidelity for r in rows) or envs != want \
+            or len(rows) != len(want) * cfg.trials:
+        return None  # another study's evaluation: evaluate again
+    return rows
+
+
+def _cells(cfg: StudyConfig, policy: str) -> list[tuple[str, str]]:
+    return [(c, e) for c, e in cells((policy,)) if cfg.envs is None or e in cfg.envs]
+
+
+def trial(cfg: StudyConfig, policy: str, seed: int) -> list[dict]:
+    """One grid point: train or resume (or skip when finished), then evaluate; returns the trial rows."""
+    import torch
+
+    from mjendo.train import train
+
+    torch.set_num_threads(1)
+    run = run_folder(cfg, policy, seed)
+    cached = _read_results(run, cfg)
+    if cached is not None and finished(run, train_config(cfg, policy, seed).total_timesteps):
+        validate(cfg, policy, run)
+        return cached
+    run.mkdir(parents=True, exist_ok=True)
+    mark = run / RUNNING_MARK
+    mark.write_text(f"{socket.gethostname()} {os.getpid()}\n")
+    try:
+        if not finished(run, train_config(cfg, policy, seed).total_timesteps):
+            train(policy, cfg.timesteps, seed, out=cfg.runs, config_file=cfg.config, progress=False)
+        rows = []
+        for _, env in _cells(cfg, policy):
+            trials, _ = run_trials(str(run), env, eval_seeds(cfg), fidelity=cfg.fidelity)
+            rows += [{**asdict(t), "controller": policy, "seed_trained": seed, "fidelity": cfg.fidelity}
+                     for t in trials]
+        _write_rows(run / RESULTS_FILE, rows)
+        validate(cfg, policy, run)
+        return rows
+    finally:
+        mark.unlink(missing_ok=True)
+
+
+def validate(cfg: StudyConfig, policy: str, run: Path) -> dict:
+    """Success rate and mean error on the validation trials in the training condition (cached in the run)."""
+    path = run / VALIDATION_FILE
+    if path.exists():
+        return json.loads(path.read_text())
+    env = train_config(cfg, policy, 0).env
+    seeds = [VALIDATION_SEED + i for i in range(VALIDATION_TRIALS)]
+    trials, _ = run_trials(str(run), env, seeds, fidelity=cfg.fidelity)
+    result = {"env": env, "fidelity": cfg.fidelity, "trials": len(trials), "first_seed": VALIDATION_SEED,
+              "success_rate": float(np.mean([t.success for t in trials])),
+              "mean_final_mm": float(np.mean([t.final_mm for t in trials]))}
+    path.write_text(json.dumps(result, indent=1) + "\n")
+    return result
+
+
+def best_seeds(cfg: StudyConfig) -> dict[str, tuple[int, dict]]:
+    """Per policy, the seed with the best validation success rate (then the smaller error)."""
+    best = {}
+    for p in cfg.policies:
+        scored = [(s, validate(cfg, p, run_folder(cfg, p, s))) for s in cfg.seeds]
+        best[p] = max(scored, key=lambda sv: (sv[1]["success_rate"], -sv[1]["mean_final_mm"]))
+    return best
+
+
+def _write_rows(path: Path, rows: list[dict]) -> None:
+    tmp = path.with_suffix(".tmp")
+    with open(tmp, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    os.replace(tmp, path)
+
+
+# ------------------------------------------------------------------ Ray
+def _reachable(address: str) -> None:
+    """Fail fast, naming the fix, when a cluster address cannot be reached (ray.init would wait a long time)."""
+    if address in ("auto", "local"):
+        return
+    hostport = address.split("://", 1)[-1]
+    host, _, port = hostport.rpartition(":")
+    if not host or not port.isdigit():
+        raise ConfigError(f"--address {address!r} is not host:port (e.g. 10.0.0.5:6379, or ray://10.0.0.5:10001)")
+    try:
+        with socket.create_connection((host, int(port)), timeout=5):
+            pass
+    except OSError as exc:
+        raise ConfigError(f"cannot reach the Ray cluster at {address} ({exc.strerror or exc}): start it with "
+                          "`ray start --head --port=6379` on the head node, or leave out --address to run "
+                          "locally") from exc
+
+
+def connect(address: str | None) -> None:
+    try:
+        import ray
+    except ImportError as exc:
+        raise ConfigError("the study runs on Ray: install it with `pip install 'mjendo[study]'` (make study "
+                          "does)") from exc
+    address = address or os.environ.get("RAY_ADDRESS")
+    if address:
+        _reachable(address)
+    if ray.is_initialized():
+        return
+    os.environ.setdefault("RAY_AUTH_MODE", "disabled")  # a local throwaway cluster needs no token
+    try:
+        if address:
+            ray.init(address=address, log_to_driver=False)
+        else:
+            ray.init(include_dashboard=False, log_to_driver=False)
+    except Exception as exc:  # ConnectionError, RuntimeError, version mismatch
+        raise ConfigError(f"cannot start or join Ray ({exc}); see docs/study.md") from exc
+
+
+def _steps_done(cfg: StudyConfig, grid: list[tuple[str, int]]) -> int:
+    total = 0
+    for p, s in grid:
+        path = run_folder(cfg, p, s) / "episodes.csv"
+        if path.exists():
+            with open(path, "rb") as f:
+                f.seek(max(0, path.stat().st_size - 200))
+                last = f.read().decode(errors="ignore").strip().splitlines()[-1]
+            first = last.split(",")[0]
+            total += int(first) if first.isdigit() else 0
+    return total
+
+
+def run_grid(cfg: StudyConfig) -> list[dict]:
+    """Every grid point as a Ray task; progress every 15 s; returns all trial rows."""
+    import ray
+
+    connect(cfg.address)
+    grid = [(p, s) for p in cfg.policies for s in cfg.seeds]
+    for p, s in grid:
+        if adopt_shipped(cfg, p, s):
+            print(f"{p} seed {s}: the shipped policy is this run (same seed, task and budget): not retrained")
+    task = ray.remote(num_cpus=cfg.cpus_per_trial, num_gpus=cfg.gpus_per_trial)(trial)
+    refs = {task.remote(cfg, p, s): (p, s) for p, s in grid}
+    rows, pending = [], list(refs)
+    t0, steps0 = time.time(), _steps_done(cfg, grid)
+    last = t0
+    while pending:
+        ready, pending = ray.wait(pending, num_returns=1, timeout=15)
+        for ref in ready:
+            try:
+                rows += ray.get(ref)
+            except ray.exceptions.RayTaskError as exc:
+                p, s = refs[ref]
+                raise ConfigError(f"{p} seed {s} failed: {exc.cause if hasattr(exc, 'cause') else exc}") from exc
+        if time.time() - last >= 15 or not pending:
+            last = time.time()
+            running = sum((run_folder(cfg, p, s) / RUNNING_MARK).exists() for p, s in grid)
+            done = len(grid) - len(pending)
+            rate = (_steps_done(cfg, grid) - steps0) / max(time.time() - t0, 1e-9)
+            print(f"study: {done} done, {min(running, len(pending))} running, "
+                  f"{len(pending) - min(running, len(pending))} pending; {rate:.0f} training steps/s", flush=True)
+    return rows
+
+
+# ------------------------------------------------------------------ analysis
+def analyse(rows: list[dict]) -> tuple[list[dict], list[dict], dict]:
+    """Per policy x env estimates over seeds and trials, and the paper's comparisons."""
+    per_cell: dict[tuple[str, str], dict[int, list[dict]]] = {}
+    for r in rows:
+        per_cell.setdefault((r["controller"], r["env"]), {}).setdefault(int(r["seed_trained"]), []).append(r)
+    summary, estimates = [], {}
+    for (pol, env), by_seed in per_cell.items():
+        seeds = sorted(by_seed)
+        success = [np.array([_bool(t["success"]) for t in by_seed[s]], float) for s in seeds]
+        est = stats.estimate(success)
+        estimates[pol, env] = est
+        err = stats.estimate([np.array([float(t["final_mm"]) for t in by_seed[s]]) for s in seeds])
+        force = stats.estimate([np.array([float(t["mean_force_n"]) for t in by_seed[s]]) for s in seeds])
+        summary.append({
+            "policy": pol, "env": env, "seeds": len(seeds), "trials_per_seed": len(by_seed[seeds[0]]),
+            "sr": 100 * est["mean"], "sr_low": 100 * est["low"], "sr_high": 100 * est["high"],
+            "sr_per_seed": " ".join(f"{100 * s.mean():.1f}" for s in success),
+            "error_mm": err["mean"], "error_low": err["low"], "error_high": err["high"],
+            "mean_force_n": force["mean"], "seed_list": " ".join(map(str, seeds)),
+        })
+    comparisons = []
+    for a, b in COMPARISONS:
+        for env in ("FE", "SE", "DE", "UE1", "UE2"):
+            if (a, env) in estimates and (b, env) in estimates:
+                d = stats.difference(estimates[a, env], estimates[b, env])
+                comparisons.append({"comparison": f"{a} - {b}", "env": env, "diff_points": 100 * d["mean"],
+                                    "low": 100 * d["low"], "high": 100 * d["high"],
+                                    "supported": d["excludes_zero"]})
+    return summary, comparisons, {k: v for k, v in per_cell.items()}
+
+
+def _bool(x) -> bool:
+    return x is True or str(x) == "True"
+
+
+def _csv(path: Path, rows: list[dict]) -> None:
+    if rows:
+        _write_rows(path, rows)
+
+
+def write_outputs(cfg: StudyConfig, rows: list[dict], command: str, wall_s: float) -> Path:
+    from mjendo import figures
+
+    out = Path(cfg.out)
+    out.mkdir(parents=True, exist_ok=True)
+    summary, comparisons, per_cell = analyse(rows)
+    _csv(out / "summary.csv", summary)
+    _csv(out / "comparisons.csv", comparisons)
+    seeds_dir = out / "seeds"
+    for p, s in sorted({(r["controller"], int(r["seed_trained"])) for r in rows}):
+        d = seeds_dir / f"{p}_seed{s}"
+        d.mkdir(parents=True, exist_ok=True)
+        run = run_folder(cfg, p, s)
+        for name in (artifacts.META_FILE, RESULTS_FILE, VALIDATION_FILE, "evaluations.csv"):
+            if (run / name).exists():
+                shutil.copy2(run / name, d / name)
+    fig = figures.study_seeds(summary, out / "seeds.png")
+    lines = [
+        "# mjendo study: the paper's comparisons over training seeds", "",
+        f"Command: `{command}`  ",
+        f"Wall time {wall_s / 60:.1f} min. Policies {', '.join(cfg.policies)}, training seeds "
+        f"{', '.join(map(str, cfg.seeds))}, {cfg.trials} evaluation trials (80 steps, seeds 0-{cfg.trials - 1}) per "
+        f"environment and seed, evaluated in the {cfg.fidelity} stomach.", "",
+        "SR: mean over seeds of each seed's success rate; 95 % interval from a stratified bootstrap over seeds and "
+        "trials (mjendo/stats.py). Error: final tip error over all trials (mm).", "",
+        "| policy | env | seeds | SR % (95 % CI) | SR per seed % | error mm (CI) | mean force N |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for r in summary:
+        lines.append(f"| {r['policy']} | {r['env']} | {r['seeds']} | {r['sr']:.1f} ({r['sr_low']:.1f}-"
+                     f"{r['sr_high']:.1f}) | {r['sr_per_seed']} | {r['error_mm']:.1f} ({r['error_low']:.1f}-"
+                     f"{r['error_high']:.1f}) | {r['mean_force_n']:.2f} |")
+    if comparisons:
+        lines += ["", "## The paper's comparisons", "",
+                  "| comparison | env | difference, points (95 % CI) | the interval excludes 0 |", "|---|---|---|---|"]
+        for c in comparisons:
+            lines.append(f"| {c['comparison']} | {c['env']} | {c['diff_points']:+.1f} ({c['low']:+.1f} to "
+                         f"{c['high']:+.1f}) | {'yes' if c['supported'] else 'no'} |")
+        lines += ["", "Only differences whose interval excludes 0 are claimed; the others are not distinguishable "
+                  "with these seeds and trials."]
+    best = best_seeds(cfg)
+    lines += ["", "## Validation: which seed is shipped", "",
+              f"{VALIDATION_TRIALS} trials per seed in the policy's training condition, on seeds "
+              f"{VALIDATION_SEED}.. (disjoint from the evaluation trials above).", "",
+              "| policy | seed | validation SR % | final error mm | best |", "|---|---|---|---|---|"]
+    for p in cfg.policies:
+        for seed in cfg.seeds:
+            v = validate(cfg, p, run_folder(cfg, p, seed))
+            mark = ("shipped" if cfg.ship_best else "yes") if best[p][0] == seed else ""
+            lines.append(f"| {p} | {seed} | {100 * v['success_rate']:.1f} | {v['mean_final_mm']:.1f} | {mark} |")
+    if cfg.ship_best:
+        for p, (seed, _) in best.items():
+            artifacts.ship(run_folder(cfg, p, seed), p)
+    lines += ["", f"![Success rate per seed (dots) and across seeds (bar, 95 % CI)]({fig.name})", "",
+              "*Success rate of every training seed (dots) and the mean over seeds with its 95 % stratified-"
+              "bootstrap interval (black), per environment.*", ""]
+    (out / "report.md").write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
+    print(f"wrote {out}")
+    return out
+
+
+def study(cfg: StudyConfig, command: str = "make study") -> Path:
+    cfg.check()
+    t0 = time.time()
+    rows = run_grid(cfg)
+    return write_outputs(cfg, rows, command, time.time() - t0)
+
+
+def _ints(text: str) -> tuple[int, ...]:
+    try:
+        return tuple(int(x) for x in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated whole numbers, got {text!r}") from None
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m mjendo.study", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--policies", default="D,E", help="comma-separated, A-E (default D,E)")
+    ap.add_argument("--seeds", type=_ints, default=(0, 1, 2), help="comma-separated training seeds (default 0,1,2)")
+    ap.add_argument("--timesteps", type=int, help="training budget per run (default: the config's)")
+    ap.add_argument("--trials", type=int, default=200, help="evaluation trials per environment and seed")
+    ap.add_argument("--fidelity", choices=["fast", "full"], default="fast", help="stomach to evaluate in")
+    ap.add_argument("--envs", help="comma-separated subset of FE, SE, DE, UE1, UE2")
+    ap.add_argument("--config", type=Path, default=paths.TRAINING_CONFIG, help="training config")
+    ap.add_argument("--runs", type=Path, default=paths.RUNS, help="run folders (shared storage on a cluster)")
+    ap.add_argument("--out", type=Path, default=paths.RUNS / "study", help="results (eval/study: the committed one)")
+    ap.add_argument("--cpus-per-trial", type=float, default=1.0)
+    ap.add_argument("--gpus-per-trial", type=float, default=0.0)
+    ap.add_argument("--address", help="Ray cluster (host:port or ray://host:10001); default: RAY_ADDRESS, else local")
+    ap.add_argument("--ship-best", action="store_true",
+                    help="copy each policy's best-by-validation seed to models/policies/")
+    a = ap.parse_args(argv)
+    cfg = StudyConfig(tuple(a.policies.split(",")), a.seeds, a.timesteps, a.trials, a.fidelity,
+                      tuple(a.envs.split(",")) if a.envs else None, a.config, a.runs, a.out, a.cpus_per_trial,
+                      a.gpus_per_trial, a.address, a.ship_best)
+    command = "python -m mjendo.study " + " ".join(argv if argv is not None else sys.argv[1:])
+    return cli.run(lambda: study(cfg, command), ConfigError, PolicyError)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

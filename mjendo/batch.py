@@ -1,0 +1,390 @@
+"""N worlds of the navigation task on MuJoCo Warp: the NavigationTask MDP, batched (GPU, or Warp's CPU device).
+
+Physics runs in MuJoCo Warp (``mujoco_warp.step`` over all worlds); the task
+logic (actions, the periodic load with a per-world phase, observations with
+the contact indicator and resultant contact force, rewards, termination,
+targets that move with the wall, auto-reset) runs in torch on the same
+device, on zero-copy views of Warp's arrays: no Python loop over worlds.
+Every constant of the MDP comes from the CPU :class:`~mjendo.task.NavigationTask`
+of the same config (start states, target lists, frame, scales), so both
+backends define one task.
+
+Needs the optional extra ``mjendo[warp]`` (``mujoco-warp``, ``warp-lang``).
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from mjendo.config import (
+    ACTION_SIZE,
+    PAPER_ACTION_LIMIT,
+    PAPER_BONUS,
+    PAPER_EXIT_X_MM,
+    PAPER_SUCCESS_MM,
+    ConfigError,
+    TaskConfig,
+    task_config,
+)
+from mjendo.sim import MAX_SPEED
+from mjendo.task import NavigationTask
+from mjendo.units import MM_PER_M
+
+
+def _require():
+    try:
+        import mujoco_warp
+        import torch
+        import warp
+    except ImportError as exc:
+        raise ConfigError("the batched backend needs MuJoCo Warp: install it with `pip install 'mjendo[warp]'` "
+                          f"({exc})") from exc
+    init_quietly(warp)
+    return warp, mujoco_warp, torch
+
+
+_WARP_READY = False
+
+
+def init_quietly(wp) -> None:
+    """Initialise Warp without its banner (on a machine without a GPU it also prints a CUDA warning from C)."""
+    global _WARP_READY
+    if _WARP_READY:
+        return
+    _WARP_READY = True
+    wp.config.quiet = True
+    sys.stdout.flush()
+    saved = os.dup(1), os.dup(2)
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(devnull, 1)
+        os.dup2(devnull, 2)
+        wp.init()
+    finally:
+        os.dup2(saved[0], 1)
+        os.dup2(saved[1], 2)
+        for fd in (*saved, devnull):
+            os.close(fd)
+
+
+def _signed(c: int) -> int:
+    return c - (1 << 64) if c >= 1 << 63 else c
+
+
+_GOLD, _MIX1, _MIX2 = _signed(0x9E3779B97F4A7C15), _signed(0xBF58476D1CE4E5B9), _signed(0x94D049BB133111EB)
+
+
+def uniform(seed, counter, stream: int):
+    """Counter-based uniform numbers in [0, 1): one independent stream per (world seed, episode, use).
+
+    splitmix64 on int64 tensors (multiplication wraps, shifts are masked to be logical), so every world
+    draws its own reproducible numbers whatever the other worlds do.
+    """
+    x = seed * _GOLD + counter * _MIX1 + stream
+    x = (x ^ ((x >> 30) & ((1 << 34) - 1))) * _MIX1
+    x = (x ^ ((x >> 27) & ((1 << 37) - 1))) * _MIX2
+    x = x ^ ((x >> 31) & ((1 << 33) - 1))
+    return ((x >> 11) & ((1 << 53) - 1)).double() / float(1 << 53)
+
+
+@dataclass
+class BatchStep:
+    """One step of all worlds (tensors on the batch's device, leading dimension N)."""
+
+    obs: object
+    reward: object
+    terminated: object
+    truncated: object
+    info: dict
+
+
+class BatchedNavigation:
+    """``n_worlds`` copies of one task condition, stepped together; each world resets itself when it ends."""
+
+    render_mode = None  # no rendering here: record with the CPU env (mjendo.viewer)
+
+    def __init__(self, n_worlds: int, cfg: TaskConfig | None = None, device: str | None = None, seed: int = 0,
+                 nconmax: int | None = None, njmax: int | None = None, **task):
+        wp, mjw, torch = _require()
+        if isinstance(n_worlds, bool) or not isinstance(n_worlds, int) or n_worlds < 1:
+            raise ConfigError(f"n_worlds must be a whole number >= 1, not {n_worlds!r}")
+        self.cfg = cfg if cfg is not None else task_config(**task)
+        self.core = NavigationTask(self.cfg)  # the MDP's constants: start states, targets, frame, scales
+        core, m = self.core, self.core.sim.model
+        self.wp_device = device or ("cuda:0" if wp.is_cuda_available() else "cpu")
+        self.device = torch.device(str(self.wp_device))
+        self.n = n_worlds
+        full = self.cfg.fidelity == "full"
+        with wp.ScopedDevice(self.wp_device):
+            self.mw = mjw.put_model(m)
+            if hasattr(self.mw.opt, "warn_overflow"):
+                self.mw.opt.warn_overflow = 0  # the solver's iteration cap would print every step
+            self.d = mjw.make_data(m, nworld=n_worlds, nconmax=nconmax or (128 if full else 64),
+                                   njmax=njmax or (1024 if full else 512))
+        self._mjw, self._wp, self._torch = mjw, wp, torch
+        t = self._t
+        d, s = self.d, core.sim
+        self.qpos, self.qvel, self.ctrl = t(d.qpos), t(d.qvel), t(d.ctrl)
+        self.time, self.warmstart = t(d.time), t(d.qacc_warmstart)
+        self.act = t(d.act) if m.na else None
+        # Index tensors of what the task reads.
+        self.cable_act = torch.as_tensor(s.cable_act, device=self.device)
+        self.cable_ten = torch.as_tensor(s.cable_ten, device=self.device)
+        self.cable_max = torch.as_tensor(s.cable_pull_max, device=self.device, dtype=torch.float64)
+        self.ins_lo, self.ins_hi = (float(x) for x in s.insertion_range)
+        self.targets = torch.as_tensor(core.targets, device=self.device)
+        self.axis = torch.as_tensor(core.axis, device=self.device, dtype=torch.float64)
+        self.origin = torch.as_tensor(core.origin, device=self.device, dtype=torch.float64)
+        self.obs_low = torch.as_tensor(core.obs_low, device=self.device)
+        self.obs_high = torch.as_tensor(core.obs_high, device=self.device)
+        scope = np.flatnonzero(s.scope_geom)
+        self.scope_geom = torch.zeros(m.ngeom, dtype=torch.bool, device=self.device)
+        self.scope_geom[torch.as_tensor(scope, device=self.device)] = True
+        self.root = int(m.body_rootid[s.tip_body])
+        self._starts = self._start_states()
+        self._fe_targets = (torch.as_tensor(core._fe_targets, device=self.device, dtype=torch.float64)
+                            if core._fe_targets is not None else None)
+        # Per-world task state.
+        f64 = {"device": self.device, "dtype": torch.float64}
+        self.pulls = torch.zeros(n_worlds, 4, **f64)
+        self.insertion = torch.zeros(n_worlds, **f64)
+        self.prev_axial = torch.zeros(n_worlds, **f64)
+        self.steps = torch.zeros(n_worlds, dtype=torch.int64, device=self.device)
+        self.target = torch.zeros(n_worlds, dtype=torch.int64, device=self.device)
+        self.phase = torch.zeros(n_worlds, dtype=torch.int64, device=self.device)  # start snapshot drawn
+        self.episode_return = torch.zeros(n_worlds, **f64)
+        self.world_seed = seed * 1_000_003 + torch.arange(n_worlds, device=self.device, dtype=torch.int64)
+        self.episodes = torch.zeros(n_worlds, dtype=torch.int64, device=self.device)
+        self._contact_ids = wp.array(np.arange(d.naconmax, dtype=np.int32), dtype=int, device=self.wp_device)
+        self._contact_out = wp.zeros(d.naconmax, dtype=wp.spatial_vector, device=self.wp_device)
+        self.force = torch.zeros(n_worlds, 3, **f64)
+        # Each world's time in float64, advanced like MuJoCo's on the CPU: Warp's float32 time can land on the
+        # other side of a load switch (t = 2T) and flip the square wave for a step.
+        self.clock = torch.zeros(n_worlds, **f64)
+        self.dt = float(m.opt.timestep)
+        self.contact = torch.zeros(n_worlds, dtype=torch.bool, device=self.device)
+
+    # ------------------------------------------------------------------ plumbing
+    def _t(self, arr):
+        return self._wp.to_torch(arr)
+
+    def _start_states(self) -> dict:
+        """The CPU task's start snapshots (one per load phase) as tensors: qpos, qvel, act, time, warm start."""
+        torch, core = self._torch, self.core
+        m = core.sim.model
+        data = mujoco.MjData(m)
+        fields = {"qpos": [], "qvel": [], "act": [], "time": [], "warmstart": [], "ctrl": []}
+        for state in core._starts:
+            mujoco.mj_setState(m, data, state, mujoco.mjtState.mjSTATE_INTEGRATION)
+            for k, v in (("qpos", data.qpos), ("qvel", data.qvel), ("act", data.act), ("time", [data.time]),
+                         ("warmstart", data.qacc_warmstart), ("ctrl", data.ctrl)):
+                fields[k].append(np.array(v, dtype=np.float64))
+        return {k: torch.as_tensor(np.stack(v), device=self.device) for k, v in fields.items()}
+
+    # ------------------------------------------------------------------ episodes
+    def reset(self, mask=None):
+        """Start new episodes in the worlds of ``mask`` (all by default): a drawn load phase and target."""
+        torch = self._torch
+        if mask is None:
+            mask = torch.ones(self.n, dtype=torch.bool, device=self.device)
+        idx = torch.nonzero(mask).squeeze(1)
+        if idx.numel() == 0:
+            return self.observation()
+        seed, ep = self.world_seed[idx], self.episodes[idx]
+        n_starts = self._starts["qpos"].shape[0]
+        phase = (uniform(seed, ep, 1) * n_starts).long().clamp(max=n_starts - 1) if self.cfg.randomize_phase \
+            else torch.zeros_like(idx)
+        st = self._starts
+        for name in ("qpos", "qvel", "warmstart"):
+            getattr(self, name)[idx] = st[name][phase].to(getattr(self, name).dtype)
+        self.clock[idx] = st["time"][phase].squeeze(1)
+        self.time[idx] = self.clock[idx].to(self.time.dtype)
+        if self.act is not None:
+            self.act[idx] = st["act"][phase].to(self.act.dtype)
+        pick = (uniform(seed, ep, 2) * len(self.targets)).long().clamp(max=len(self.targets) - 1)
+        self.target[idx] = self.targets[pick]
+        self.phase[idx] = phase
+        self.pulls[idx] = 0.0
+        self.insertion[idx] = 0.0
+        self.prev_axial[idx] = 0.0
+        self.steps[idx] = 0
+        self.episode_return[idx] = 0.0
+        self.episodes[idx] += 1
+        self._write_controls()
+        self._mjw.forward(self.mw, self.d)
+        self._read_contact()
+        return self.observation()
+
+    # ------------------------------------------------------------------ physics
+    def _write_controls(self) -> None:
+        torch, s = self._torch, self.core.sim
+        ctrl = self.ctrl
+        ctrl[:, self.cable_act] = torch.clamp(self.pulls, -self.cable_max, self.cable_max).to(ctrl.dtype)
+        ctrl[:, s.insert_act] = torch.clamp(self.insertion, self.ins_lo, self.ins_hi).to(ctrl.dtype)
+        self._write_load()
+
+    def _write_load(self) -> None:
+        """The paper's square wave at every world's own time (+f0 in [0, T), -f0 in [T, 2T))."""
+        s = self.core.sim
+        if s.load_act < 0:
+            return
+        up = self._torch.remainder(self.clock / s.half_period, 2.0) < 1.0
+        self.ctrl[:, s.load_act] = self._torch.where(up, s.f0, -s.f0).to(self.ctrl.dtype)
+
+    def _physics(self) -> None:
+        for _ in range(self.core.substeps):
+            self._write_load()
+            self._mjw.step(self.mw, self.d)
+            self.clock += self.dt
+
+    def _read_contact(self) -> None:
+        """Resultant endoscope-stomach contact force per world, as mjendo.sim.Simulator.contact computes it."""
+        torch, s = self._torch, self.core.sim
+        self._contact_out.zero_()
+        self._mjw.contact_force(self.mw, self.d, self._contact_ids, False, self._contact_out)
+        local = self._t(self._contact_out)[:, :3].double()
+        c = self.d.contact
+        n = int(self.d.nacon.numpy()[0])
+        geom, flex = self._t(c.geom)[:n], self._t(c.flex)[:n]
+        valid = (geom[:, 0] >= 0) & (flex[:, 1] == s.flex) & (self._t(c.efc_address)[:n, 0] >= 0)
+        valid &= self.scope_geom[geom[:, 0].clamp(min=0).long()]
+        valid &= local[:n, 0] > 0.0  # pushing, as the CPU reading keeps
+        frame = self._t(c.frame)[:n].double()
+        world = -torch.einsum("kji,kj->ki", frame, local[:n])  # the force on the scope (geom side 0)
+        world = world * valid[:, None]
+        worldid = self._t(c.worldid)[:n].long()
+        self.force = torch.zeros(self.n, 3, dtype=torch.float64, device=self.device).index_add_(0, worldid, world)
+        self.contact = torch.zeros(self.n, dtype=torch.int64, device=self.device).index_add_(
+            0, worldid, valid.long()) > 0
+
+    # ------------------------------------------------------------------ task
+    def tip_pos(self):
+        return self._t(self.d.site_xpos)[:, self.core.sim.tip_site].double()
+
+    def tip_vel(self):
+        """Linear velocity of the tip site (world frame): com-based body velocity moved to the site."""
+        torch = self._torch
+        b = self.core.sim.tip_body
+        cvel = self._t(self.d.cvel)[:, b].double()
+        com = self._t(self.d.subtree_com)[:, self.root].double()
+        return cvel[:, 3:] + torch.cross(cvel[:, :3], self.tip_pos() - com, dim=1)
+
+    def target_pos(self):
+        if self._fe_targets is not None:
+            return self._fe_targets[self.target]
+        verts = self._t(self.d.flexvert_xpos).double()
+        adr = self.core.sim._vert_adr
+        return verts[self._torch.arange(self.n, device=self.device), adr + self.target]
+
+    def observation(self, delta=None):
+        torch = self._torch
+        if delta is None:
+            delta = self.target_pos() - self.tip_pos()
+        cable = self._t(self.d.ten_length)[:, self.cable_ten].double()
+        blocks = [delta * MM_PER_M, self.tip_vel() * MM_PER_M, cable * MM_PER_M, self.prev_axial[:, None]]
+        if self.cfg.force_obs:
+            blocks += [self.contact[:, None].double(), self.force / self.cfg.force_ref_n]
+        obs = torch.cat(blocks, dim=1).float()
+        return torch.maximum(torch.minimum(obs, self.obs_high), self.obs_low)
+
+    def step(self, action) -> BatchStep:
+        """Apply (N, 5) actions, advance every world one control step, reset the worlds that ended.
+
+        ``info["final_obs"]`` holds the last observation of the worlds that ended (the returned ``obs``
+        of those worlds is already the first of their next episode), as vectorised envs report it.
+        """
+        torch, c = self._torch, self.cfg
+        a = torch.as_tensor(action, device=self.device, dtype=torch.float64).reshape(self.n, ACTION_SIZE)
+        if not torch.isfinite(a).all():
+            raise ValueError("actions contain NaN or inf; actions must be finite numbers in "
+                             f"[-{PAPER_ACTION_LIMIT}, {PAPER_ACTION_LIMIT}]")
+        a = a.clamp(-PAPER_ACTION_LIMIT, PAPER_ACTION_LIMIT)
+        self.pulls = torch.clamp(self.pulls + a[:, :4] * self.core.cable_step, -self.cable_max, self.cable_max)
+        self.insertion = torch.clamp(self.insertion + a[:, 4] * self.core.insertion_step, self.ins_lo, self.ins_hi)
+        self.prev_axial = a[:, 4].clone()
+        self._write_controls()
+        self._physics()
+        self.steps += 1
+        qvel = self.qvel.double()
+        unstable = ~torch.isfinite(qvel).all(dim=1) | (qvel.abs().max(dim=1).values >= MAX_SPEED)
+        self._read_contact()
+        tip, target = self.tip_pos(), self.target_pos()
+        delta = target - tip
+        dist = torch.linalg.norm(delta, dim=1) * MM_PER_M
+        ok = ~unstable
+        success = (dist < PAPER_SUCCESS_MM) & ok
+        exited = (((tip - self.origin) @ self.axis) * MM_PER_M < PAPER_EXIT_X_MM) & ok
+        force_n = torch.linalg.norm(self.force, dim=1)
+        reward = -dist + PAPER_BONUS * success.double() - PAPER_BONUS * exited.double() - c.force_penalty * force_n
+        reward = torch.where(ok, reward, torch.zeros_like(reward))
+        terminated = success | exited
+        truncated = ((self.steps >= c.max_steps) | unstable) & ~terminated
+        obs = self.observation(delta)
+        self.episode_return += reward
+        done = terminated | truncated
+        info = {"distance_mm": dist, "is_success": success, "exited": exited, "contact": self.contact.clone(),
+                "force_N": self.force.clone(), "target_index": self.target.clone(), "unstable": unstable,
+                "episode_return": self.episode_return.clone(), "episode_length": self.steps.clone(),
+                "final_obs": obs.clone()}
+        if done.any():
+            obs = torch.where(done[:, None], self.reset(done), obs)
+        return BatchStep(obs, reward, terminated, truncated, info)
+
+
+
+def vec_env(n_worlds: int, cfg: TaskConfig, device: str | None = None, seed: int = 0):
+    """A Stable-Baselines3 ``VecEnv`` over a :class:`BatchedNavigation` (numpy in and out, auto-reset)."""
+    import gymnasium as gym
+    from stable_baselines3.common.vec_env.base_vec_env import VecEnv
+
+    class WarpVecEnv(VecEnv):
+        """SB3's view of the batch: every world is one environment; infos carry what Monitor would log."""
+
+        def __init__(self):
+            self.batch = BatchedNavigation(n_worlds, cfg, device=device, seed=seed)
+            b = self.batch
+            space = gym.spaces.Box(b.core.obs_low, b.core.obs_high, dtype=np.float32)
+            action = gym.spaces.Box(-PAPER_ACTION_LIMIT, PAPER_ACTION_LIMIT, (ACTION_SIZE,), np.float32)
+            super().__init__(n_worlds, space, action)
+            self._actions = None
+
+        def reset(self):
+            return self.batch.reset().cpu().numpy()
+
+        def step_async(self, actions):
+            self._actions = actions
+
+        def step_wait(self):
+            r = self.batch.step(self._actions)
+            done = (r.terminated | r.truncated).cpu().numpy()
+            info = {k: v.cpu().numpy() for k, v in r.info.items()}
+            infos = [{} for _ in range(self.num_envs)]
+            for i in np.flatnonzero(done):
+                infos[i] = {"terminal_observation": info["final_obs"][i], "is_success": bool(info["is_success"][i]),
+                            "distance_mm": float(info["distance_mm"][i]),
+                            "TimeLimit.truncated": bool(r.truncated[i]) and not bool(r.terminated[i]),
+                            "episode": {"r": float(info["episode_return"][i]), "l": int(info["episode_length"][i]),
+                                        "t": 0.0}}
+            return r.obs.cpu().numpy(), r.reward.cpu().numpy().astype(np.float32), done, infos
+
+        def close(self):
+            pass
+
+        def get_attr(self, attr_name, indices=None):
+            return [getattr(self.batch, attr_name)] * len(self._get_indices(indices))
+
+        def set_attr(self, attr_name, value, indices=None):
+            setattr(self.batch, attr_name, value)
+
+        def env_method(self, method_name, *args, indices=None, **kwargs):
+            return [getattr(self.batch, method_name)(*args, **kwargs)] * len(self._get_indices(indices))
+
+        def env_is_wrapped(self, wrapper_class, indices=None):
+            return [False] * len(self._get_indices(indices))
+
+    return WarpVecEnv()

@@ -388,3 +388,32 @@ def vec_env(n_worlds: int, cfg: TaskConfig, device: str | None = None, seed: int
             return [False] * len(self._get_indices(indices))
 
     return WarpVecEnv()
+
+
+def success_rate(policy_dir, cfg: TaskConfig, n_worlds: int, episodes: int, device: str | None = None,
+                 seed: int = 0) -> dict:
+    """Deterministic trials of a trained policy over many worlds: the first ``episodes`` episodes to end.
+
+    The policy folder is read as the CPU tools read it (:mod:`mjendo.artifacts`): same normalisation, same
+    checks; its actions are computed for all worlds at once.
+    """
+    import torch
+
+    from mjendo.policies import PPOController
+
+    ctrl = PPOController.from_folder(policy_dir)
+    batch = BatchedNavigation(n_worlds, cfg, device=device, seed=seed)
+    ctrl.check(batch.core)
+    obs = batch.reset()
+    successes, errors = [], []
+    while len(successes) < episodes:
+        normed = ctrl.normalize(obs.cpu().numpy())
+        with torch.no_grad():
+            action, _ = ctrl.model.predict(normed, deterministic=True)
+        r = batch.step(action)
+        done = (r.terminated | r.truncated).cpu().numpy()
+        successes += r.info["is_success"].cpu().numpy()[done].tolist()
+        errors += r.info["distance_mm"].cpu().numpy()[done].tolist()
+        obs = r.obs
+    return {"episodes": episodes, "success_rate": float(np.mean(successes[:episodes])),
+            "mean_final_mm": float(np.mean(errors[:episodes])), "device": batch.wp_device}

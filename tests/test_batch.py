@@ -158,3 +158,35 @@ def test_make_train_backend_warp_writes_a_policy_the_cpu_env_runs(tmp_path):
     obs, _ = env.reset(seed=0)
     ctrl.reset(env.task)
     assert np.abs(ctrl.act(obs, env.task)).max() <= 0.4 + 1e-6
+
+
+def test_a_shipped_policy_runs_over_many_worlds():
+    # The code path of the success-rate comparison (below), small enough for the CPU device: policy A in FE.
+    from mjendo.batch import success_rate
+    from mjendo.paths import policies_dir
+
+    r = success_rate(policies_dir() / "A", task_config(env="FE", force_obs=False, max_steps=80), 2, 2,
+                     device="cpu")
+    assert r["episodes"] == 2 and 0.0 <= r["success_rate"] <= 1.0 and np.isfinite(r["mean_final_mm"])
+
+
+@pytest.mark.slow
+def test_shipped_e_succeeds_as_often_over_many_worlds_as_in_the_cpu_env():
+    # 200 episodes over 256 worlds against the CPU env's 200 trials; the two rates agree within their 95 %
+    # intervals. Affordable on a GPU only (Warp's CPU device runs ~1 env step/s per world).
+    import warp as wp
+
+    from mjendo.batch import init_quietly, success_rate
+    from mjendo.evaluation import run_trials, wilson
+    from mjendo.paths import policies_dir
+
+    init_quietly(wp)
+    if not wp.is_cuda_available():
+        pytest.skip("needs a GPU: 200 episodes on Warp's CPU device take hours")
+    cfg = task_config(env="DE", force_obs=True, max_steps=80)
+    gpu = success_rate(policies_dir() / "E", cfg, 256, 200, seed=11)
+    trials, _ = run_trials("E", "DE", list(range(200)))
+    cpu = sum(t.success for t in trials)
+    lo_g, hi_g = wilson(round(gpu["success_rate"] * 200), 200)
+    lo_c, hi_c = wilson(cpu, 200)
+    assert lo_g <= hi_c and lo_c <= hi_g, (gpu, cpu / 200)

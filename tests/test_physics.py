@@ -140,3 +140,25 @@ def test_pushing_into_the_wall_gives_an_opposing_force_that_matches_the_joint():
     jnt = mujoco.mj_name2id(sim.model, mujoco.mjtObj.mjOBJ_JOINT, "insertion")
     qfrc = sim.data.qfrc_constraint[sim.model.jnt_dofadr[jnt]]
     assert qfrc == pytest.approx(c.force @ axis, rel=0.05)
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "MuJoCo 3.17 ignores `gap` for geom-vs-flex contacts: contacts act from the 2 mm margin, not the paper's "
+    "0.5 mm contact distance (docs/physics.md 'Contact'); fixing it needs the calibration and policies redone"))
+def test_contacts_act_within_the_papers_contact_distance():
+    from mjendo.envs import EndoscopeEnv
+
+    env = EndoscopeEnv("SE")
+    env.reset(seed=0)
+    for _ in range(60):
+        *_, info = env.step(np.array([0, 0, 0, 0, 0.4]))
+        if np.linalg.norm(info["force_N"]) > 0.3:
+            break
+    m, d = env.task.sim.model, env.task.sim.data
+    f6 = np.zeros(6)
+    acting = []
+    for i in range(d.ncon):
+        mujoco.mj_contactForce(m, d, i, f6)
+        if f6[0] > 1e-6:
+            acting.append(d.contact.dist[i])
+    assert acting and max(acting) <= 0.0005 + 1e-6  # paper: contact distance 0.5 mm

@@ -47,10 +47,14 @@ def interval(reps: np.ndarray, level: float = LEVEL) -> tuple[float, float]:
     return float(lo), float(hi)
 
 
-def estimate(per_seed: Sequence[np.ndarray], reps: int = REPS, seed: int = 0) -> dict:
-    """Point estimate (mean of per-seed means), 95 % interval and the replicates."""
+def estimate(per_seed: Sequence[np.ndarray], rng: np.random.Generator, reps: int = REPS) -> dict:
+    """Point estimate (mean of per-seed means), 95 % interval and the replicates.
+
+    Estimates that will be compared must draw from one generator (or independent ones): replicates of two
+    estimates made from the same random stream are correlated, and their difference's interval too narrow.
+    """
     groups = [np.asarray(g, float) for g in per_seed if len(g)]
-    r = replicates(groups, reps, np.random.default_rng(seed))
+    r = replicates(groups, reps, rng)
     lo, hi = interval(r)
     point = float(np.mean([g.mean() for g in groups])) if groups else float("nan")
     return {"mean": point, "low": lo, "high": hi, "seeds": len(groups), "replicates": r}

@@ -301,13 +301,14 @@ def analyse(rows: list[dict]) -> tuple[list[dict], list[dict], dict]:
     for r in rows:
         per_cell.setdefault((r["controller"], r["env"]), {}).setdefault(int(r["seed_trained"]), []).append(r)
     summary, estimates = [], {}
+    rng = np.random.default_rng(0)  # one stream for all estimates: their replicates are independent
     for (pol, env), by_seed in per_cell.items():
         seeds = sorted(by_seed)
         success = [np.array([_bool(t["success"]) for t in by_seed[s]], float) for s in seeds]
-        est = stats.estimate(success)
+        est = stats.estimate(success, rng)
         estimates[pol, env] = est
-        err = stats.estimate([np.array([float(t["final_mm"]) for t in by_seed[s]]) for s in seeds])
-        force = stats.estimate([np.array([float(t["mean_force_n"]) for t in by_seed[s]]) for s in seeds])
+        err = stats.estimate([np.array([float(t["final_mm"]) for t in by_seed[s]]) for s in seeds], rng)
+        force = stats.estimate([np.array([float(t["mean_force_n"]) for t in by_seed[s]]) for s in seeds], rng)
         summary.append({
             "policy": pol, "env": env, "seeds": len(seeds), "trials_per_seed": len(by_seed[seeds[0]]),
             "sr": 100 * est["mean"], "sr_low": 100 * est["low"], "sr_high": 100 * est["high"],

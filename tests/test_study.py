@@ -18,25 +18,29 @@ from mjendo.paths import TRAINING_CONFIG
 def test_bootstrap_on_known_answers():
     # One seed that always succeeds and one that never does: resampling the two seeds gives a mean of
     # 0, 0.5 or 1 with probabilities 1/4, 1/2, 1/4, so the 95 % interval is [0, 1] around 0.5.
-    est = stats.estimate([np.ones(500), np.zeros(500)])
+    rng = np.random.default_rng(0)
+    est = stats.estimate([np.ones(500), np.zeros(500)], rng)
     assert est["mean"] == 0.5 and (est["low"], est["high"]) == (0.0, 1.0)
     r = est["replicates"]
     assert np.mean(r == 0.5) == pytest.approx(0.5, abs=0.03) and np.mean(r == 0.0) == pytest.approx(0.25, abs=0.03)
     # Identical seeds at 80 % over 400 trials each: only trial noise is left; 3 seeds x 400 trials behave
     # like 1200 trials, whose binomial 95 % half-width is 1.96 sqrt(0.16 / 1200) = 2.3 points.
     same = [np.r_[np.ones(320), np.zeros(80)]] * 3
-    est = stats.estimate(same)
+    est = stats.estimate(same, rng)
     assert est["mean"] == pytest.approx(0.8)
-    assert (est["high"] - est["low"]) / 2 == pytest.approx(0.0226, abs=0.004)
-    # A difference of two identical estimates is centred on 0 and does not exclude it.
-    d = stats.difference(stats.estimate(same, seed=1), stats.estimate(same, seed=2))
+    half = (est["high"] - est["low"]) / 2
+    assert half == pytest.approx(0.0226, abs=0.004)
+    # Two estimates of the same data: their difference is centred on 0, does not exclude it, and its interval is
+    # sqrt(2) times as wide as each one's (independent replicates; a shared random stream would cancel them).
+    d = stats.difference(stats.estimate(same, rng), stats.estimate(same, rng))
     assert d["low"] < 0 < d["high"] and not d["excludes_zero"]
-    # A clear difference does.
-    assert stats.difference(stats.estimate([np.ones(200)] * 3), est)["excludes_zero"]
+    assert (d["high"] - d["low"]) / 2 == pytest.approx(half * 2 ** 0.5, rel=0.15)
+    # A clear difference does exclude 0.
+    assert stats.difference(stats.estimate([np.ones(200)] * 3, rng), est)["excludes_zero"]
 
 
 def test_continuous_metrics_bootstrap_too():
-    est = stats.estimate([np.full(50, 2.0), np.full(50, 4.0)])
+    est = stats.estimate([np.full(50, 2.0), np.full(50, 4.0)], np.random.default_rng(0))
     assert est["mean"] == 3.0 and est["low"] == 2.0 and est["high"] == 4.0
 
 

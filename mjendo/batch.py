@@ -238,9 +238,13 @@ class BatchedNavigation:
 
     def _physics(self) -> None:
         for _ in range(self.core.substeps):
-            self._write_load()
-            self._mjw.step(self.mw, self.d)
-            self.clock += self.dt
+            self._physics_step()
+
+    def _physics_step(self) -> None:
+        """One physics step of every world with the load at each world's time (no task logic)."""
+        self._write_load()
+        self._mjw.step(self.mw, self.d)
+        self.clock += self.dt
 
     def _read_contact(self) -> None:
         """Resultant endoscope-stomach contact force per world, as mjendo.sim.Simulator.contact computes it."""

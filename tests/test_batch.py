@@ -190,3 +190,54 @@ def test_shipped_e_succeeds_as_often_over_many_worlds_as_in_the_cpu_env():
     lo_g, hi_g = wilson(round(gpu["success_rate"] * 200), 200)
     lo_c, hi_c = wilson(cpu, 200)
     assert lo_g <= hi_c and lo_c <= hi_g, (gpu, cpu / 200)
+
+
+def _press_force(step, steps_in: int, hold: int) -> np.ndarray:
+    """Insert straight at full speed for ``steps_in`` control steps, hold still; mean force of the hold's 2nd half."""
+    forces = []
+    for k in range(steps_in + hold):
+        f = step(np.array([0, 0, 0, 0, 0.4 if k < steps_in else 0.0]))
+        if k >= steps_in + hold // 2:
+            forces.append(f)
+    return np.mean(forces, axis=0)
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason=(
+    "measured this round: held end-on press, Warp 8.8 N (5.6 N sideways) against the CPU's 1.5 N; the two "
+    "backends' flex contact differs beyond path effects (docs/backends.md); not yet explained"))
+def test_a_held_press_settles_to_the_same_force():
+    # End-on into the far wall of the static stomach (insertion 140 mm), held 1 s: the wall's steady push on
+    # the scope is a property of the end state, not of the path there.
+    batch = BatchedNavigation(1, env="SE", fidelity="fast", device="cpu", randomize_phase=False)
+    batch.reset()
+    cpu = twins(batch, "SE")[0]
+    fw = _press_force(lambda a: batch.step(a[None]).info["force_N"].numpy()[0], 35, 34)
+    fc = _press_force(lambda a: cpu.step(a)[4]["force_N"], 35, 34)
+    assert np.linalg.norm(fc) > 0.3
+    assert np.linalg.norm(fw) == pytest.approx(np.linalg.norm(fc), rel=0.15), (fw, fc)
+
+
+@pytest.mark.slow
+def test_the_wall_moves_as_far_under_the_load():
+    # The fidelity figure's protocol (mjendo.fidelity.target_motion): scope withdrawn to the end of its range,
+    # one load cycle from the drawn start state; peak-to-peak motion of each world's target vertex.
+    batch = BatchedNavigation(2, env="DE", fidelity="fast", device="cpu", seed=5)
+    batch.reset()
+    envs = twins(batch, "DE")
+    batch.insertion[:] = batch.ins_lo
+    batch._write_controls()
+    for e in envs:
+        e.task.sim.set_controls(np.zeros(4), e.task.sim.insertion_range[0])
+    steps = int(round(2 * batch.core.sim.half_period / batch.core.sim.model.opt.timestep))
+    track_w, track_c = [], []
+    for _ in range(steps):
+        batch._physics_step()
+        track_w.append(batch.target_pos().numpy())
+        for e in envs:
+            e.task.sim.step(1)
+        track_c.append([e.task.target_pos() for e in envs])
+    p2p_w = np.linalg.norm(np.ptp(np.array(track_w), axis=0), axis=1)
+    p2p_c = np.linalg.norm(np.ptp(np.array(track_c), axis=0), axis=1)
+    assert (p2p_c > 2e-3).all()  # the wall really moves (millimetres)
+    np.testing.assert_allclose(p2p_w, p2p_c, rtol=0.05)

@@ -241,3 +241,14 @@ def test_the_wall_moves_as_far_under_the_load():
     p2p_c = np.linalg.norm(np.ptp(np.array(track_c), axis=0), axis=1)
     assert (p2p_c > 2e-3).all()  # the wall really moves (millimetres)
     np.testing.assert_allclose(p2p_w, p2p_c, rtol=0.05)
+
+
+def test_bad_batch_arguments():
+    from mjendo.config import ConfigError
+
+    with pytest.raises(ConfigError, match="n_worlds must be a whole number >= 1"):
+        BatchedNavigation(0, env="FE", device="cpu")
+    b = BatchedNavigation(1, env="FE", device="cpu")
+    b.reset()
+    with pytest.raises(ValueError, match="NaN"):
+        b.step(np.full((1, 5), np.nan))

@@ -26,9 +26,18 @@ EPISODE = textwrap.dedent("""
 
 
 def test_wheel_installs_into_a_fresh_venv_and_runs_policy_e(tmp_path):
+    # Build from a copy of the sources: setuptools leaves a build/ folder in the tree it builds.
+    import shutil
+
+    src = tmp_path / "src"
+    src.mkdir()
+    for name in ("pyproject.toml", "setup.py", "README.md"):
+        shutil.copy2(ROOT / name, src / name)
+    for name in ("mjendo", "models", "train"):
+        shutil.copytree(ROOT / name, src / name, ignore=shutil.ignore_patterns("__pycache__"))
     wheels = tmp_path / "wheels"
     subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q", "-w",
-                    str(wheels), str(ROOT)], check=True, capture_output=True, cwd=tmp_path)
+                    str(wheels), str(src)], check=True, capture_output=True, cwd=tmp_path)
     (wheel,) = wheels.glob("mjendo-*.whl")
     venv = tmp_path / "venv"
     subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(venv)], check=True)

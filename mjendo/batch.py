@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import os
 import sys
+import warnings
 from dataclasses import dataclass
 
 import mujoco
@@ -49,6 +50,14 @@ def _require():
 
 
 _WARP_READY = False
+
+# Found in round 2 (tests/test_batch.py::test_a_contact_acts_on_the_whole_scope_chain, docs/backends.md).
+TRILINEAR_CONTACT_BUG = (
+    "mujoco_warp 3.17.0 builds the Jacobian of a contact with an interpolated (trilinear) flex from each body's "
+    "own dofs only, leaving out the scope's ancestor joints (insertion, every hinge up the chain): in the fast "
+    "stomach the wall barely pushes the scope (a held press reaches 8.8 N where MuJoCo settles at 1.5 N). Use "
+    "fidelity='full' on Warp for faithful contact, and judge fast-trained policies in the CPU env "
+    "(docs/backends.md)")
 
 
 def init_quietly(wp) -> None:
@@ -126,6 +135,8 @@ class BatchedNavigation:
                 self.mw.opt.warn_overflow = 0  # the solver's iteration cap would print every step
             self.d = mjw.make_data(m, nworld=n_worlds, nconmax=nconmax or (128 if full else 64),
                                    njmax=njmax or (1024 if full else 512))
+        if m.nflex and m.flex_interp.any():
+            warnings.warn(TRILINEAR_CONTACT_BUG, RuntimeWarning, stacklevel=2)
         self._mjw, self._wp, self._torch = mjw, wp, torch
         t = self._t
         d, s = self.d, core.sim

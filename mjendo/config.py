@@ -144,7 +144,8 @@ class Fidelity:
     # close to the 1 mm/s bar, for 15-20 % more speed). The fast
     # stomach settles at 1e-6 (1e-5 leaves 1-6 mm/s; 1e-8 costs 40 % of its
     # speed). A held press needs 25-50 iterations, contact-rich sweeps
-    # 300-600; a cap of 200 left the M + hD + h^2 K solve under-converged.
+    # 300-600; caps of 200-300 leave the M + hD + h^2 K solve unconverged on most
+    # contact steps and 150 breaks a deep press (`python -m mjendo.fidelity solver`).
     iterations: int = 1000
     tolerance: float = 1e-6
     # Reduced-order stomachs are stiffer than the mesh they interpolate

@@ -217,6 +217,33 @@ def refinement_study() -> None:
             print(f"  press {press_name}: {f:.3f} N", flush=True)
 
 
+def solver_study(caps: list[int]) -> None:
+    """The full stomach's iteration cap against speed, convergence and every fidelity figure.
+
+    Both iterative solves (the discrete integrator's M + hD + h^2 K and the
+    contact solve) share ``iterations`` and ``tolerance``; MuJoCo counts the
+    steps whose M + hD + h^2 K solve stopped at the cap (``mjWARN_INERTIA``).
+    """
+    import mujoco
+
+    for cap in caps:
+        fid = replace(FIDELITIES["full"], iterations=cap)
+        sim = simulator("SE", fid)
+        rate = physics_rate(sim)
+        flagged = sim.data.warning[mujoco.mjtWarning.mjWARN_INERTIA].number
+        steps = int(round(sim.data.time / sim.model.opt.timestep))
+        holds = [hold_speeds(simulator("SE", fid), p) for p in (PRESSES[1], PRESSES[2])]
+        forces = force_summary(fid)
+        motion = {env: motion_summary(env, fid) for env in ("DE", "UE2")}
+        print(f"\niterations {cap}: {rate:.0f} physics steps/s in an end-on press "
+              f"({rate * sim.model.opt.timestep:.2f}x realtime); M + hD + h^2 K solve at the cap in "
+              f"{flagged}/{steps} steps", flush=True)
+        print("  held presses, tip/wall mm/s: " + ", ".join(f"{t:.2f}/{w:.2f}" for t, w in holds))
+        print("  press forces N: " + ", ".join(f"{f:.4f}" for f in forces.values()))
+        print("  target motion median/max mm: " + ", ".join(
+            f"{env} {m['median_mm']:.2f}/{m['max_mm']:.2f}" for env, m in motion.items()), flush=True)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m mjendo.fidelity", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -226,9 +253,14 @@ def main(argv: list[str] | None = None) -> int:
     c.add_argument("--young-scale", type=float, help="young's modulus factor of the candidate")
     c.add_argument("--load-gain", type=float, help="gain on the periodic load of the candidate")
     sub.add_parser("refine", help="discretisation study: the full stomach on finer meshes")
+    sv = sub.add_parser("solver", help="the full stomach's solver iteration cap: speed against every figure")
+    sv.add_argument("--iterations", type=int, nargs="+", default=[1000, 300, 200, 150])
     args = ap.parse_args(argv)
     if args.cmd == "refine":
         refinement_study()
+        return 0
+    if args.cmd == "solver":
+        solver_study(args.iterations)
         return 0
     changes = {k: v for k, v in (("cellcount", tuple(args.cells) if args.cells else None),
                                  ("young_scale", args.young_scale), ("load_gain", args.load_gain)) if v}

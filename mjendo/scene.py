@@ -11,6 +11,7 @@ and the config; ``scene_xml`` returns one as text.
 from __future__ import annotations
 
 import argparse
+import hashlib
 from pathlib import Path
 
 import mujoco
@@ -42,6 +43,14 @@ def scene_name(cfg: SceneConfig) -> str:
 def scene_path(env: str, fidelity: str = "fast") -> Path:
     """Committed scene file an environment runs in (FE has no stomach: one file for every fidelity)."""
     return SCENES_DIR / f"{scene_name(scene_config(env, fidelity))}.xml"
+
+
+def fingerprint(fidelity: str = "fast") -> str:
+    """Short hash of the scene files a fidelity's environments run in: results cached on disk name their model."""
+    h = hashlib.sha256()
+    for env in ("FE", "DE"):
+        h.update(scene_path(env, fidelity).read_bytes())
+    return h.hexdigest()[:12]
 
 
 def _header(cfg: SceneConfig) -> str:

@@ -34,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mjendo import artifacts, cli, paths, stats
+from mjendo import artifacts, cli, paths, scene, stats
 from mjendo.artifacts import PolicyError
 from mjendo.config import ConfigError
 from mjendo.evaluation import cells, run_trials
@@ -137,9 +137,10 @@ def _read_results(run: Path, cfg: StudyConfig) -> list[dict] | None:
         rows = list(csv.DictReader(f))
     envs = {r["env"] for r in rows}
     want = {e for _, e in _cells(cfg, rows[0]["controller"] if rows else "")}
-    if not rows or any(r["fidelity"] != cfg.fidelity for r in rows) or envs != want \
-            or len(rows) != len(want) * cfg.trials:
-        return None  # another study's evaluation: evaluate again
+    model = scene.fingerprint(cfg.fidelity)
+    if not rows or any(r["fidelity"] != cfg.fidelity or r.get("model") != model for r in rows) \
+            or envs != want or len(rows) != len(want) * cfg.trials:
+        return None  # another study's evaluation, or one on other scene files: evaluate again
     return rows
 
 
@@ -168,8 +169,8 @@ def trial(cfg: StudyConfig, policy: str, seed: int) -> list[dict]:
         rows = []
         for _, env in _cells(cfg, policy):
             trials, _ = run_trials(str(run), env, eval_seeds(cfg), fidelity=cfg.fidelity)
-            rows += [{**asdict(t), "controller": policy, "seed_trained": seed, "fidelity": cfg.fidelity}
-                     for t in trials]
+            rows += [{**asdict(t), "controller": policy, "seed_trained": seed, "fidelity": cfg.fidelity,
+                      "model": scene.fingerprint(cfg.fidelity)} for t in trials]
         _write_rows(run / RESULTS_FILE, rows)
         validate(cfg, policy, run)
         return rows
@@ -180,12 +181,16 @@ def trial(cfg: StudyConfig, policy: str, seed: int) -> list[dict]:
 def validate(cfg: StudyConfig, policy: str, run: Path) -> dict:
     """Success rate and mean error on the validation trials in the training condition (cached in the run)."""
     path = run / VALIDATION_FILE
+    model = scene.fingerprint(cfg.fidelity)
     if path.exists():
-        return json.loads(path.read_text())
+        cached = json.loads(path.read_text())
+        if cached.get("fidelity") == cfg.fidelity and cached.get("model") == model:
+            return cached
     env = train_config(cfg, policy, 0).env
     seeds = [VALIDATION_SEED + i for i in range(VALIDATION_TRIALS)]
     trials, _ = run_trials(str(run), env, seeds, fidelity=cfg.fidelity)
-    result = {"env": env, "fidelity": cfg.fidelity, "trials": len(trials), "first_seed": VALIDATION_SEED,
+    result = {"env": env, "fidelity": cfg.fidelity, "model": model, "trials": len(trials),
+              "first_seed": VALIDATION_SEED,
               "success_rate": float(np.mean([t.success for t in trials])),
               "mean_final_mm": float(np.mean([t.final_mm for t in trials]))}
     path.write_text(json.dumps(result, indent=1) + "\n")

@@ -54,7 +54,7 @@ def tiny_config(tmp_path_factory):
     return path
 
 
-def test_a_tiny_grid_runs_on_ray_and_reports_intervals(tiny_config, tmp_path):
+def test_a_tiny_grid_runs_on_ray_and_reports_intervals(tiny_config, tmp_path, monkeypatch):
     import ray
 
     from mjendo.study import StudyConfig, study
@@ -91,6 +91,13 @@ def test_a_tiny_grid_runs_on_ray_and_reports_intervals(tiny_config, tmp_path):
     finally:
         ray.shutdown()
     assert (tmp_path / "runs" / "D" / "seed1" / "study_trials.csv").stat().st_mtime_ns == before
+    # ... unless the scene files changed since (a contact fix, a recalibration): then they are evaluated again.
+    from mjendo import scene
+    from mjendo.study import _read_results
+
+    assert _read_results(tmp_path / "runs" / "D" / "seed1", cfg) is not None
+    monkeypatch.setattr(scene, "fingerprint", lambda fidelity="fast": "another model")
+    assert _read_results(tmp_path / "runs" / "D" / "seed1", cfg) is None
 
 
 def test_a_killed_trial_resumes_to_the_same_step_count(tiny_config, tmp_path):

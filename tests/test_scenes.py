@@ -86,7 +86,8 @@ def test_divergence_raises_our_error():
 
 def test_scene_files_have_the_paper_contact_settings():
     m = mujoco.MjModel.from_xml_path(str(scene.scene_path("DE", "fast")))
-    assert m.flex_margin[0] == pytest.approx(0.002)  # alarm distance 2 mm
-    assert m.flex_margin[0] - m.flex_gap[0] == pytest.approx(0.0005)  # contact distance 0.5 mm
+    # Contact distance 0.5 mm; SOFA's 2 mm alarm distance has no MuJoCo counterpart that carries no force
+    # (MuJoCo ignores gap for flex contacts: docs/physics.md "Contact").
+    assert m.flex_margin[0] == pytest.approx(0.0005) and m.flex_gap[0] == 0.0
     assert m.flex_friction[0, 0] == pytest.approx(0.1)
     assert m.opt.gravity[2] == pytest.approx(-9.8)

@@ -55,7 +55,7 @@ _WARP_READY = False
 TRILINEAR_CONTACT_BUG = (
     "mujoco_warp 3.17.0 builds the Jacobian of a contact with an interpolated (trilinear) flex from each body's "
     "own dofs only, leaving out the scope's ancestor joints (insertion, every hinge up the chain): in the fast "
-    "stomach the wall barely pushes the scope (a held press reaches 8.8 N where MuJoCo settles at 1.5 N). Use "
+    "stomach the wall barely pushes the scope (a held press reaches 7.8 N where MuJoCo settles at 1.7 N). Use "
     "fidelity='full' on Warp for faithful contact, and judge fast-trained policies in the CPU env "
     "(docs/backends.md)")
 

@@ -5,6 +5,8 @@ step-by-step agreement is asserted before contact; with contact, quantities that
 are compared (docs/backends.md).
 """
 
+import warnings
+
 import mujoco
 import numpy as np
 import pytest
@@ -64,10 +66,12 @@ def test_before_contact_worlds_track_the_cpu_task_step_by_step(env_name, inserti
         np.testing.assert_allclose(r.reward.numpy(), [c[1] for c in cpu], atol=POS_MM)
 
 
-def test_contact_indicator_and_force_agree_for_the_same_state():
+@pytest.mark.parametrize("fidelity", [
+    pytest.param("fast", marks=pytest.mark.xfail(strict=True, reason=TRILINEAR_CONTACT_BUG)), "full"])
+def test_contact_indicator_and_force_agree_for_the_same_state(fidelity):
     # Press the straight scope into the far wall on the CPU, copy those states into two worlds, and read the
     # resultant contact force both ways: Warp's contact data + constraint forces vs mj_contactForce.
-    env = EndoscopeEnv("SE", fidelity="fast", force_obs=True)
+    env = EndoscopeEnv("SE", fidelity=fidelity, force_obs=True)
     env.reset(seed=0)
     m, d = env.task.sim.model, env.task.sim.data
     states = []
@@ -77,8 +81,10 @@ def test_contact_indicator_and_force_agree_for_the_same_state():
             states.append((d.qpos.copy(), d.qvel.copy(), d.time, d.qacc_warmstart.copy(), d.ctrl.copy()))
         if len(states) == 2:
             break
-    with pytest.warns(RuntimeWarning, match="interpolated \\(trilinear\\) flex"):  # the known upstream bug
-        batch = BatchedNavigation(2, env="SE", fidelity="fast", device="cpu")
+    with warnings.catch_warnings():
+        if fidelity == "full":
+            warnings.simplefilter("error")  # the full stomach is not subject to the trilinear bug: no warning
+        batch = BatchedNavigation(2, env="SE", fidelity=fidelity, device="cpu")
     batch.reset()
     cpu = []
     for i, (qp, qv, t, ws, ctrl) in enumerate(states):
@@ -92,12 +98,18 @@ def test_contact_indicator_and_force_agree_for_the_same_state():
     for i, f in enumerate(cpu):
         fw = batch.force[i].numpy()
         # The normal push (the wall's main reaction) agrees within 10 %; the small lateral parts depend on which
-        # of the near-contacts each collision pipeline keeps (measured: 0.05 vs 0.3 N, 0.5 vs 1.0 N).
+        # of the near-contacts each collision pipeline keeps. Fast with the 0.5 mm contact: 0.66 vs 7.5 N (the
+        # upstream bug: the constraint solve sees no scope behind the contact).
         assert np.linalg.norm(fw) == pytest.approx(np.linalg.norm(f), rel=0.10)
         axis = f / np.linalg.norm(f)
         assert fw @ axis == pytest.approx(np.linalg.norm(f), rel=0.10)
     obs = batch.observation().numpy()
     assert (obs[:, 11] == 1.0).all() and np.allclose(obs[:, 12:15], batch.force.numpy(), atol=1e-5)
+
+
+def test_a_trilinear_stomach_warns_of_the_known_warp_bug():
+    with pytest.warns(RuntimeWarning, match="interpolated \\(trilinear\\) flex"):
+        BatchedNavigation(1, env="SE", fidelity="fast", device="cpu")
 
 
 def test_worlds_reset_themselves_with_their_own_seeds():
@@ -263,7 +275,8 @@ def test_a_contact_acts_on_the_whole_scope_chain(fidelity):
     "full"])
 def test_a_held_press_settles_to_the_same_force(fidelity):
     # End-on into the far wall of the static stomach (insertion 140 mm), held 1 s: the wall's steady push on
-    # the scope is a property of the end state, not of the path there. Measured in full: 1.182 vs 1.184 N.
+    # the scope is a property of the end state, not of the path there (up to friction: held states are not
+    # unique). Measured in full: Warp 1.19 N, CPU 1.31 N; in fast 7.8 vs 1.7 N (the upstream bug).
     batch = BatchedNavigation(1, env="SE", fidelity=fidelity, device="cpu", randomize_phase=False)
     batch.reset()
     cpu = twins(batch, "SE", fidelity)[0]

@@ -166,11 +166,11 @@ def trial(cfg: StudyConfig, policy: str, seed: int) -> list[dict]:
     try:
         if not finished(run, train_config(cfg, policy, seed).total_timesteps):
             train(policy, cfg.timesteps, seed, out=cfg.runs, config_file=cfg.config, progress=False)
-        rows = []
+        rows, model = [], scene.fingerprint(cfg.fidelity)
         for _, env in _cells(cfg, policy):
             trials, _ = run_trials(str(run), env, eval_seeds(cfg), fidelity=cfg.fidelity)
             rows += [{**asdict(t), "controller": policy, "seed_trained": seed, "fidelity": cfg.fidelity,
-                      "model": scene.fingerprint(cfg.fidelity)} for t in trials]
+                      "model": model} for t in trials]
         _write_rows(run / RESULTS_FILE, rows)
         validate(cfg, policy, run)
         return rows

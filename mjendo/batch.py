@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
+from mjendo import warp_patch
 from mjendo.config import (
     ACTION_SIZE,
     PAPER_ACTION_LIMIT,
@@ -46,19 +47,11 @@ def _require():
         raise ConfigError("the batched backend needs MuJoCo Warp: install it with `pip install 'mjendo[warp]'` "
                           f"({exc})") from exc
     init_quietly(warp)
+    warp_patch.apply()
     return warp, mujoco_warp, torch
 
 
 _WARP_READY = False
-
-# Found in round 2 (tests/test_batch.py::test_a_contact_acts_on_the_whole_scope_chain, docs/backends.md).
-TRILINEAR_CONTACT_BUG = (
-    "mujoco_warp 3.17.0 builds the Jacobian of a contact with an interpolated (trilinear) flex from each body's "
-    "own dofs only, leaving out the scope's ancestor joints (insertion, every hinge up the chain): in the fast "
-    "stomach the wall barely pushes the scope (a held press reaches 7.8 N where MuJoCo settles at 1.7 N). Use "
-    "fidelity='full' on Warp for faithful contact, and judge fast-trained policies in the CPU env "
-    "(docs/backends.md)")
-
 
 def init_quietly(wp) -> None:
     """Initialise Warp without its banner (on a machine without a GPU it also prints a CUDA warning from C)."""
@@ -101,6 +94,12 @@ def uniform(seed, counter, stream: int):
     return ((x >> 11) & ((1 << 53) - 1)).double() / float(1 << 53)
 
 
+# Contact and constraint buffers per world. With 64 contacts the fast stomach lost its deepest contacts in a hard
+# press (Warp 0.08 N against MuJoCo's 7.4 N for the same state; tests/test_batch.py); 256 is MuJoCo Warp's own
+# default for flex scenes and kept every contact in every press measured.
+NCONMAX, NJMAX = 256, 1024
+
+
 @dataclass
 class BatchStep:
     """One step of all worlds (tensors on the batch's device, leading dimension N)."""
@@ -128,15 +127,14 @@ class BatchedNavigation:
         self.wp_device = device or ("cuda:0" if wp.is_cuda_available() else "cpu")
         self.device = torch.device(str(self.wp_device))
         self.n = n_worlds
-        full = self.cfg.fidelity == "full"
         with wp.ScopedDevice(self.wp_device):
             self.mw = mjw.put_model(m)
             if hasattr(self.mw.opt, "warn_overflow"):
-                self.mw.opt.warn_overflow = 0  # the solver's iteration cap would print every step
-            self.d = mjw.make_data(m, nworld=n_worlds, nconmax=nconmax or (128 if full else 64),
-                                   njmax=njmax or (1024 if full else 512))
-        if m.nflex and m.flex_interp.any():
-            warnings.warn(TRILINEAR_CONTACT_BUG, RuntimeWarning, stacklevel=2)
+                self.mw.opt.warn_overflow = 0  # the solver's iteration cap would print every step: see step()
+            self.d = mjw.make_data(m, nworld=n_worlds, nconmax=nconmax or NCONMAX, njmax=njmax or NJMAX)
+        self._overflow_bits = int(mjw.OverflowType.ALL & ~(mjw.OverflowType.ITERATIONS
+                                                             | mjw.OverflowType.LS_ITERATIONS))
+        self.overflows = 0  # world-steps that lost contacts or constraint rows (buffers too small)
         self._mjw, self._wp, self._torch = mjw, wp, torch
         t = self._t
         d, s = self.d, core.sim
@@ -257,6 +255,19 @@ class BatchedNavigation:
         self._mjw.step(self.mw, self.d)
         self.clock += self.dt
 
+    def _count_overflows(self) -> None:
+        """Warn (once) when a world ran out of contact or constraint buffers: it silently lost contacts."""
+        overflow = self._t(self.d.overflow)
+        lost = (overflow & self._overflow_bits) != 0
+        n = int(lost.sum())
+        if n:
+            if not self.overflows:
+                warnings.warn(f"{n} of {self.n} worlds ran out of contact/constraint buffers (nconmax="
+                              f"{self.d.naconmax // self.n}, njmax={self.d.njmax}) and lost contacts: pass larger "
+                              "nconmax/njmax to BatchedNavigation", RuntimeWarning, stacklevel=3)
+            self.overflows += n
+            overflow.zero_()
+
     def _read_contact(self) -> None:
         """Resultant endoscope-stomach contact force per world, as mjendo.sim.Simulator.contact computes it."""
         torch, s = self._torch, self.core.sim
@@ -324,6 +335,7 @@ class BatchedNavigation:
         self.prev_axial = a[:, 4].clone()
         self._write_controls()
         self._physics()
+        self._count_overflows()
         self.steps += 1
         qvel = self.qvel.double()
         unstable = ~torch.isfinite(qvel).all(dim=1) | (qvel.abs().max(dim=1).values >= MAX_SPEED)

@@ -195,7 +195,7 @@ def _has_warp() -> bool:
     return importlib.util.find_spec("mujoco_warp") is not None
 
 
-def _batched_table(max_worlds: int | None) -> None:
+def _batched_table(max_worlds: int | None, min_worlds: int, fidelities: list[str]) -> None:
     """MuJoCo Warp: env steps/s (task logic included) against the number of worlds, DE fast and full."""
     import warp as wp
 
@@ -204,9 +204,9 @@ def _batched_table(max_worlds: int | None) -> None:
     init_quietly(wp)
     gpu = wp.is_cuda_available()
     top = max_worlds or (8192 if gpu else 8)
-    counts = [n for n in (1, 2, 8, 64, 256, 1024, 2048, 4096, 8192) if n <= top]
+    counts = [n for n in (1, 2, 8, 64, 256, 1024, 2048, 4096, 8192) if min_worlds <= n <= top]
     print(f"\n{'batched (MuJoCo Warp)':<24}{'worlds':>8}{'env steps/s':>14}{'physics steps/s':>18}   device")
-    for fid in ("fast", "full"):
+    for fid in fidelities:
         for n in counts:
             r = _run(["--figure", "batched", "--env", "DE", "--fidelity", fid, "--worlds", str(n), "--steps",
                       "20" if gpu else "3"])
@@ -239,6 +239,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--worlds", type=int, default=1, help="batched figure: worlds")
     ap.add_argument("--max-worlds", type=int, help="batched figures: largest world count (default: 8 on a CPU, "
                     "8192 on a GPU)")
+    ap.add_argument("--min-worlds", type=int, default=1, help="batched figures: smallest world count")
+    ap.add_argument("--batched-fidelities", default="fast,full", help="batched figures: stomachs, comma-separated")
     ap.add_argument("--vec-env", default="subproc", choices=["subproc", "dummy"])
     ap.add_argument("--n-envs", type=int, help="training figure: environments (default: policy E's config)")
     ap.add_argument("--env", default="DE")
@@ -287,7 +289,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.only in (None, "fidelity"):
         _fidelity_table()
     if args.only == "batched" or (args.only is None and _has_warp()):
-        _batched_table(args.max_worlds)
+        _batched_table(args.max_worlds, args.min_worlds, args.batched_fidelities.split(","))
     return 0
 
 

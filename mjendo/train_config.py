@@ -89,6 +89,10 @@ class BatchedArgs:
     """budget: large batches need more samples than 2 CPU environments"""
     ppo: dict[str, Any] = field(default_factory=dict)
     """PPO fields that change with large batches (n_steps, batch_size, n_epochs, learning_rate, ...)"""
+    eval_every: int | None = None
+    """steps between periodic evaluations (in the CPU env: at GPU rates every 20k steps would dominate)"""
+    checkpoint_every: int | None = None
+    """steps between checkpoints"""
 
 
 @dataclass
@@ -273,6 +277,8 @@ def load(policy: str, path: Path, **overrides) -> TrainConfig:
     if given.pop("backend", "cpu") == "warp":
         cfg.backend = "warp"
         cfg.n_envs, cfg.total_timesteps = cfg.batched.n_envs, cfg.batched.total_timesteps
+        cfg.eval_every = cfg.batched.eval_every or cfg.eval_every
+        cfg.checkpoint_every = cfg.batched.checkpoint_every or cfg.checkpoint_every
         cfg.ppo = from_dict(PPOArgs, {**dataclasses.asdict(cfg.ppo), **cfg.batched.ppo}, "batched.ppo")
     if "learning_rate" in given:
         cfg.ppo.learning_rate = _coerce(given.pop("learning_rate"), float, "--learning-rate")

@@ -137,6 +137,7 @@ class BatchedNavigation:
         self.overflows = 0  # world-steps that lost contacts or constraint rows (buffers too small)
         self._mjw, self._wp, self._torch = mjw, wp, torch
         t = self._t
+        self._overflow_flags = self._t(self.d.overflow)  # zero-copy view, made once: step() reads it every step
         d, s = self.d, core.sim
         self.qpos, self.qvel, self.ctrl = t(d.qpos), t(d.qvel), t(d.ctrl)
         self.time, self.warmstart = t(d.time), t(d.qacc_warmstart)
@@ -257,7 +258,7 @@ class BatchedNavigation:
 
     def _count_overflows(self) -> None:
         """Warn (once) when a world ran out of contact or constraint buffers: it silently lost contacts."""
-        overflow = self._t(self.d.overflow)
+        overflow = self._overflow_flags
         lost = (overflow & self._overflow_bits) != 0
         n = int(lost.sum())
         if n:

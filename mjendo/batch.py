@@ -244,7 +244,7 @@ class BatchedNavigation:
         if s.load_act < 0:
             return
         up = self._torch.remainder(self.clock / s.half_period, 2.0) < 1.0
-        self.ctrl[:, s.load_act] = self._torch.where(up, s.f0, -s.f0).to(self.ctrl.dtype)
+        self.ctrl[:, s.load_act] = self._torch.where(up, s.load_amplitude, -s.load_amplitude).to(self.ctrl.dtype)
 
     def _physics(self) -> None:
         for _ in range(self.core.substeps):

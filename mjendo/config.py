@@ -71,6 +71,13 @@ class Material:
     # s; stiffness-proportional (Rayleigh beta) damping: tissue dissipation, so
     # the wall settles within ~0.1 s instead of ringing.
     damping: float = 0.03
+    # 1/s; mass-proportional (Rayleigh alpha) damping: the drag of the viscera
+    # around the stomach on its wall's absolute velocity. Without it the
+    # stomach's slowest mode (8.7 rad/s, a swing about the fixed vertices)
+    # rang at 1.4 Hz and the 10 ms step's numerical damping hid it, so wall
+    # motion depended on the timestep (-29 % at 10 ms vs 2.5 ms). 15 = 2 w1 -
+    # damping * w1^2: that mode critically damped (docs/physics.md "Damping").
+    drag_per_s: float = 15.0
     density_kg_m3: float = 1040.0  # soft tissue
 
 
@@ -156,18 +163,28 @@ class Fidelity:
     # Reduced-order stomachs respond to the point load through their few grid
     # nodes, not through the wall around the loaded vertices: matching the
     # contact stiffness (young_scale) leaves the load-driven motion too small.
-    # This gain on the periodic load's actuator calibrates that global mode
-    # separately, so target motion matches the full model too (docs/physics.md).
-    load_gain: float = 1.0
+    # This gain on the periodic load calibrates that global mode separately, so
+    # target motion matches the full model too (docs/physics.md). One gain per
+    # load level (1, 2, 3 x f0: DE, UE1, UE2; interpolated between): the full
+    # stomach softens under large loads (its UE2 motion is 4.5x DE's for 3x the
+    # load), the trilinear one does not (2.8x).
+    load_gains: tuple[float, float, float] = (1.0, 1.0, 1.0)
+
+    def load_gain(self, multiplier: float) -> float:
+        """Gain on the periodic load at ``multiplier`` x f0."""
+        return float(np.interp(multiplier, LOAD_LEVELS, self.load_gains))
+
+
+LOAD_LEVELS = (1.0, 2.0, 3.0)  # x f0: the paper's DE, UE1, UE2
 
 
 FIDELITIES: dict[str, Fidelity] = {
     # Default: reduced-order stomach, interpolated on a trilinear grid (also
     # supported by MuJoCo Warp); collision still uses the full mesh.
-    # young_scale and load_gain were calibrated against "full" with
+    # young_scale and load_gains were calibrated against "full" with
     # `python -m mjendo.fidelity` (docs/physics.md "Calibration"): press forces
     # within 1.25x (0.5 mm contact), target motion within 25 %.
-    "fast": Fidelity("fast", "trilinear", (2, 2, 2), young_scale=0.05, load_gain=5.7),
+    "fast": Fidelity("fast", "trilinear", (2, 2, 2), young_scale=0.05, load_gains=(4.1, 5.7, 6.3)),
     # Every mesh vertex is a 3-dof body: the per-vertex FEM stomach.
     "full": Fidelity("full", "full", (1, 1, 1), tolerance=1e-8),
 }

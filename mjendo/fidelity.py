@@ -251,7 +251,8 @@ def main(argv: list[str] | None = None) -> int:
     c = sub.add_parser("compare", help="ratios of a candidate fast stomach's figures to the full one's")
     c.add_argument("--cells", type=int, nargs=3, help="trilinear cell counts of the candidate")
     c.add_argument("--young-scale", type=float, help="young's modulus factor of the candidate")
-    c.add_argument("--load-gain", type=float, help="gain on the periodic load of the candidate")
+    c.add_argument("--load-gains", type=float, nargs=3, metavar=("DE", "UE1", "UE2"),
+                   help="gains on the periodic load of the candidate at 1, 2 and 3 x f0")
     sub.add_parser("refine", help="discretisation study: the full stomach on finer meshes")
     sv = sub.add_parser("solver", help="the full stomach's solver iteration cap: speed against every figure")
     sv.add_argument("--iterations", type=int, nargs="+", default=[1000, 300, 200, 150])
@@ -262,8 +263,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.cmd == "solver":
         solver_study(args.iterations)
         return 0
-    changes = {k: v for k, v in (("cellcount", tuple(args.cells) if args.cells else None),
-                                 ("young_scale", args.young_scale), ("load_gain", args.load_gain)) if v}
+    given = {"cellcount": args.cells, "young_scale": args.young_scale, "load_gains": args.load_gains}
+    changes = {k: tuple(v) if isinstance(v, list) else v for k, v in given.items() if v}
     for k, v in compare(replace(FIDELITIES["fast"], name="candidate", **changes)).items():
         print(f"{k:<40}{v:8.2f}")
     return 0

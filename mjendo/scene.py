@@ -31,6 +31,7 @@ from mjendo.units import from_mm, to_mm
 SCENES_DIR = paths.SCENES_DIR
 FLEX = "stomach"
 LOAD = "periodic_load"
+LOAD_GAINS = "periodic_load_gains"  # custom numeric: Fidelity.load_gains
 TARGET_BODY = "target"
 STOMACH_GEOM_GROUP = 2
 BACKDROP_GROUP = 3  # the picture's backdrop: shown by the external camera, not by the scope's
@@ -106,8 +107,8 @@ def validate(cfg: SceneConfig) -> None:
     if not 0.0 <= mat.poisson < 0.49:
         raise ConfigError(f"poisson ratio must be in [0, 0.49) (got {mat.poisson}); "
                           "MuJoCo's flex is ill-conditioned near incompressibility")
-    if mat.damping < 0 or mat.density_kg_m3 <= 0:
-        raise ConfigError("damping must be >= 0 and density > 0")
+    if mat.damping < 0 or mat.drag_per_s < 0 or mat.density_kg_m3 <= 0:
+        raise ConfigError("damping and drag_per_s must be >= 0 and density > 0")
     if not 0.0 < fid.timestep_s <= 0.05:
         raise ConfigError(f"timestep must be in (0, 50 ms] (got {fid.timestep_s} s)")
 
@@ -201,7 +202,7 @@ def _merge_flex(spec: mujoco.MjSpec, flex_spec: mujoco.MjSpec) -> mujoco.MjSpec:
 
 def _add_anchors_and_load(spec: mujoco.MjSpec, model: mujoco.MjModel,
                           st: anatomy.Stomach, cfg: SceneConfig) -> None:
-    """Fixed vertices (tendon equalities) and the periodic load (tendon motor).
+    """Fixed vertices (tendon equalities), the periodic load (tendon motor) and the wall's drag.
 
     Each is a fixed tendon whose coefficients map flex dofs to a vertex's
     displacement, so the same mechanism works for per-vertex and
@@ -218,6 +219,13 @@ def _add_anchors_and_load(spec: mujoco.MjSpec, model: mujoco.MjModel,
         axis = "xyz"[int(np.argmax(np.abs(model.jnt_axis[j])))]
         spec.joints[j].name = f"{body}_{axis}"
     names = [spec.joints[j].name for j in dofs]
+    # Rayleigh alpha, damping proportional to each flex dof's mass, as the damping of a passive
+    # actuator per dof (no gain, so ctrl does nothing): MuJoCo refuses joint damping on flex bodies.
+    for j, name in zip(dofs, names, strict=True):
+        if cfg.material.drag_per_s > 0:
+            a = spec.add_actuator(name=f"drag_{name}", target=name, trntype=mujoco.mjtTrn.mjTRN_JOINT)
+            a.gainprm[0] = 0.0
+            a.damping = [cfg.material.drag_per_s * model.body_mass[model.jnt_bodyid[j]], 0, 0]
     anchored = [] if cfg.fidelity.dof == "full" else st.fixed  # full: pinned in the flexcomp
     jac = _vertex_jacobian(model, flex_id, anchored + st.forced, model.jnt_qposadr[dofs])
     for k, v in enumerate(anchored):
@@ -235,8 +243,9 @@ def _add_anchors_and_load(spec: mujoco.MjSpec, model: mujoco.MjModel,
         if abs(coef) > 1e-9:
             t.wrap_joint(name, float(coef))
     a = spec.add_actuator(name=LOAD, target=LOAD, trntype=mujoco.mjtTrn.mjTRN_TENDON)
-    a.gear[0] = cfg.fidelity.load_gain  # ctrl stays the paper's force per vertex
-    a.ctrlrange = [-10.0, 10.0]
+    # The calibrated gains travel in the scene file; the Simulator scales its square wave by them.
+    spec.add_numeric(name=LOAD_GAINS, data=list(cfg.fidelity.load_gains))
+    a.ctrlrange = [-10.0 * max(cfg.fidelity.load_gains), 10.0 * max(cfg.fidelity.load_gains)]
     a.ctrllimited = mujoco.mjtLimited.mjLIMITED_TRUE
 
 

@@ -16,7 +16,7 @@ import mujoco
 import numpy as np
 
 from mjendo import endoscope, scene
-from mjendo.config import PeriodicLoad, condition
+from mjendo.config import LOAD_LEVELS, PeriodicLoad, condition
 
 
 class InstabilityError(RuntimeError):
@@ -65,6 +65,8 @@ class Simulator:
         load = load or PeriodicLoad()
         # Per-vertex force amplitude (N) of this condition's square wave, and its half period T (s).
         self.f0 = load.f0_n * self.env.load_multiplier if self.load_act >= 0 else 0.0
+        # What the load actuator is driven with: f0 times the scene's calibrated gain at this load level.
+        self.load_amplitude = self.f0 * self._load_gain(self.model, self.env.load_multiplier)
         self.half_period = load.half_period_s
         self.reset()
 
@@ -93,6 +95,14 @@ class Simulator:
         self._insert_range = m.actuator_ctrlrange[self.insert_act].copy()
         self._f6 = np.zeros(6)
         self._v6 = np.zeros(6)
+
+    @staticmethod
+    def _load_gain(m: mujoco.MjModel, multiplier: float) -> float:
+        i = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_NUMERIC, scene.LOAD_GAINS)
+        if i < 0:
+            return 1.0
+        gains = m.numeric_data[m.numeric_adr[i]:m.numeric_adr[i] + m.numeric_size[i]]
+        return float(np.interp(multiplier, LOAD_LEVELS, gains))
 
     @staticmethod
     def _below(m: mujoco.MjModel, body: int, root: int) -> bool:
@@ -168,7 +178,7 @@ class Simulator:
         m, d = self.model, self.data
         for _ in range(n):
             if self.load_act >= 0:
-                d.ctrl[self.load_act] = square_wave(d.time, self.f0, self.half_period)
+                d.ctrl[self.load_act] = square_wave(d.time, self.load_amplitude, self.half_period)
             mujoco.mj_step(m, d)
         self.check()
 

@@ -42,6 +42,11 @@ def test_one_scene_per_fidelity_plus_fe():
     assert paths == {scene.SCENES_DIR / "stomach_fast.xml"}
     amplitudes = {e: Simulator(e, "fast").f0 for e in ("SE", "DE", "UE1", "UE2")}
     assert amplitudes == {"SE": 0.0, "DE": 1.0, "UE1": 2.0, "UE2": 3.0}  # paper: 0, f0, 2 f0, 3 f0
+    # The fast stomach drives its load with the gains calibrated per load level; full with f0 itself.
+    gains = FIDELITIES["fast"].load_gains
+    driven = [Simulator(e, "fast").load_amplitude for e in ("DE", "UE1", "UE2")]
+    assert driven == pytest.approx([gains[0], 2 * gains[1], 3 * gains[2]])
+    assert [Simulator(e, "full").load_amplitude for e in ("DE", "UE1", "UE2")] == [1.0, 2.0, 3.0]
     assert Simulator("FE").f0 == 0.0
 
 

@@ -170,12 +170,13 @@ class Fidelity:
     # load), the trilinear one does not (2.8x).
     load_gains: tuple[float, float, float] = (1.0, 1.0, 1.0)
 
-    def load_gain(self, multiplier: float) -> float:
-        """Gain on the periodic load at ``multiplier`` x f0."""
-        return float(np.interp(multiplier, LOAD_LEVELS, self.load_gains))
-
 
 LOAD_LEVELS = (1.0, 2.0, 3.0)  # x f0: the paper's DE, UE1, UE2
+
+
+def load_gain(gains, multiplier: float) -> float:
+    """Gain on the periodic load at ``multiplier`` x f0, from the gains at LOAD_LEVELS."""
+    return float(np.interp(multiplier, LOAD_LEVELS, gains))
 
 
 FIDELITIES: dict[str, Fidelity] = {

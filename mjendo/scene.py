@@ -204,7 +204,7 @@ def _add_anchors_and_load(spec: mujoco.MjSpec, model: mujoco.MjModel,
                           st: anatomy.Stomach, cfg: SceneConfig) -> None:
     """Fixed vertices (tendon equalities), the periodic load (tendon motor) and the wall's drag.
 
-    Each is a fixed tendon whose coefficients map flex dofs to a vertex's
+    Anchors and load are fixed tendons whose coefficients map flex dofs to a vertex's
     displacement, so the same mechanism works for per-vertex and
     interpolated (trilinear) dofs.
     """
@@ -221,11 +221,10 @@ def _add_anchors_and_load(spec: mujoco.MjSpec, model: mujoco.MjModel,
     names = [spec.joints[j].name for j in dofs]
     # Rayleigh alpha, damping proportional to each flex dof's mass, as the damping of a passive
     # actuator per dof (no gain, so ctrl does nothing): MuJoCo refuses joint damping on flex bodies.
-    for j, name in zip(dofs, names, strict=True):
-        if cfg.material.drag_per_s > 0:
-            a = spec.add_actuator(name=f"drag_{name}", target=name, trntype=mujoco.mjtTrn.mjTRN_JOINT)
-            a.gainprm[0] = 0.0
-            a.damping = [cfg.material.drag_per_s * model.body_mass[model.jnt_bodyid[j]], 0, 0]
+    for j, name in zip(dofs, names, strict=True) if cfg.material.drag_per_s > 0 else ():
+        a = spec.add_actuator(name=f"drag_{name}", target=name, trntype=mujoco.mjtTrn.mjTRN_JOINT)
+        a.gainprm[0] = 0.0
+        a.damping = [cfg.material.drag_per_s * model.body_mass[model.jnt_bodyid[j]], 0, 0]
     anchored = [] if cfg.fidelity.dof == "full" else st.fixed  # full: pinned in the flexcomp
     jac = _vertex_jacobian(model, flex_id, anchored + st.forced, model.jnt_qposadr[dofs])
     for k, v in enumerate(anchored):

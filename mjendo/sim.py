@@ -16,7 +16,7 @@ import mujoco
 import numpy as np
 
 from mjendo import endoscope, scene
-from mjendo.config import LOAD_LEVELS, PeriodicLoad, condition
+from mjendo.config import PeriodicLoad, condition, load_gain
 
 
 class InstabilityError(RuntimeError):
@@ -101,8 +101,7 @@ class Simulator:
         i = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_NUMERIC, scene.LOAD_GAINS)
         if i < 0:
             return 1.0
-        gains = m.numeric_data[m.numeric_adr[i]:m.numeric_adr[i] + m.numeric_size[i]]
-        return float(np.interp(multiplier, LOAD_LEVELS, gains))
+        return load_gain(m.numeric_data[m.numeric_adr[i]:m.numeric_adr[i] + m.numeric_size[i]], multiplier)
 
     @staticmethod
     def _below(m: mujoco.MjModel, body: int, root: int) -> bool:

@@ -22,29 +22,16 @@ import numpy as np
 SCENES = [("FE", "fast")] + [(e, f) for f in ("fast", "full") for e in ("SE", "DE", "UE1", "UE2")]
 
 
-def _scripted_controls(sim, k: int) -> None:
-    """Insert towards the far wall while sweeping the cables (contact-rich)."""
-    t = k * sim.model.opt.timestep
-    pull = 0.006 * np.array([np.sin(t), -np.sin(t), np.cos(0.7 * t), -np.cos(0.7 * t)])
-    sim.set_controls(pull, min(0.12, 0.05 * t))
-
-
 def physics_figure(env: str, fidelity: str, repeats: int, seconds: float) -> dict:
+    from mjendo.fidelity import sweep
     from mjendo.sim import Simulator
 
     sim = Simulator(env, fidelity)
     dt = sim.model.opt.timestep
-    n = max(50, int(seconds / dt))
-    for k in range(int(1.0 / dt)):  # warm up into contact
-        _scripted_controls(sim, k)
-        sim.step(1)
+    seconds = max(seconds, 50 * dt)
     rates, contacts = [], []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        for k in range(n):
-            _scripted_controls(sim, k)
-            sim.step(1)
-        rates.append(n / (time.perf_counter() - t0))
+    for r in range(repeats):
+        rates.append(sweep(sim, seconds, warmup_s=1.0 if r == 0 else 0.0)[0])
         contacts.append(sim.data.ncon)
     med = statistics.median(rates)
     return {"figure": "physics", "env": env, "fidelity": fidelity, "nv": int(sim.model.nv),

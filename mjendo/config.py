@@ -146,13 +146,15 @@ class Fidelity:
     # The discrete integrator solves M + hD + h^2 K iteratively with the same
     # iteration cap and tolerance as the constraint solver. An under-converged
     # solve feeds energy in: at 1e-4 the full stomach never came to rest under
-    # a held press (tip 24 mm/s, wall 29 mm/s); at 1e-8 it settles below
-    # 0.4 mm/s (docs/physics.md "Settling"; 1e-7 left up to 0.86 mm/s, too
-    # close to the 1 mm/s bar, for 15-20 % more speed). The fast
-    # stomach settles at 1e-6 (1e-5 leaves 1-6 mm/s; 1e-8 costs 40 % of its
-    # speed). A held press needs 25-50 iterations, contact-rich sweeps
-    # 300-600; caps of 200-300 leave the M + hD + h^2 K solve unconverged on most
-    # contact steps and 150 breaks a deep press (`python -m mjendo.fidelity solver`).
+    # a held press (tip 24 mm/s, wall 29 mm/s). Since the wall drag
+    # (Material.drag_per_s) both stomachs settle at 1e-6: held presses in
+    # full 0.05-0.27 mm/s (1e-8: 0.00-0.05), every press force within 3 % and
+    # every target motion within 0.01 mm of 1e-8's, 1.4x the speed of 1e-8 in
+    # the contact-rich sweep (`python -m mjendo.fidelity solver`,
+    # docs/physics.md). 1e-5 leaves the fast one creeping at 1-6 mm/s. The
+    # cap binds on 15 % of sweep steps (the contact solve, not M + hD + h^2 K);
+    # caps of 200-300 leave the M + hD + h^2 K solve unconverged on most
+    # contact steps and 150 breaks a deep press.
     iterations: int = 1000
     tolerance: float = 1e-6
     # Reduced-order stomachs are stiffer than the mesh they interpolate
@@ -187,7 +189,7 @@ FIDELITIES: dict[str, Fidelity] = {
     # within 1.25x (0.5 mm contact), target motion within 25 %.
     "fast": Fidelity("fast", "trilinear", (2, 2, 2), young_scale=0.05, load_gains=(4.1, 5.7, 6.3)),
     # Every mesh vertex is a 3-dof body: the per-vertex FEM stomach.
-    "full": Fidelity("full", "full", (1, 1, 1), tolerance=1e-8),
+    "full": Fidelity("full", "full", (1, 1, 1)),
 }
 
 

@@ -189,6 +189,29 @@ def refined_stomach(shape: StomachShape, directory: Path) -> Path:
     return directory
 
 
+def sweep_controls(sim: Simulator, k: int) -> None:
+    """Step k of the contact-rich sweep: insert towards the far wall while sweeping the cables."""
+    t = k * sim.model.opt.timestep
+    pull = 0.006 * np.array([np.sin(t), -np.sin(t), np.cos(0.7 * t), -np.cos(0.7 * t)])
+    sim.set_controls(pull, min(0.12, 0.05 * t))
+
+
+def sweep(sim: Simulator, seconds: float, warmup_s: float = 1.0) -> tuple[float, np.ndarray]:
+    """Physics steps/s of the sweep after a warm-up into contact, and the solver iterations of each step."""
+    dt = sim.model.opt.timestep
+    for k in range(int(round(warmup_s / dt))):
+        sweep_controls(sim, k)
+        sim.step(1)
+    n = int(round(seconds / dt))
+    iters = np.zeros(n, int)
+    t0 = time.perf_counter()
+    for k in range(n):
+        sweep_controls(sim, k)
+        sim.step(1)
+        iters[k] = sim.data.solver_niter[:max(1, sim.data.nisland)].sum()
+    return n / (time.perf_counter() - t0), iters
+
+
 def physics_rate(sim: Simulator, seconds: float = 1.0) -> float:
     """Physics steps per second while the scope presses end-on (contact-rich)."""
     press(sim, PRESSES[1])
@@ -198,12 +221,12 @@ def physics_rate(sim: Simulator, seconds: float = 1.0) -> float:
     return n / (time.perf_counter() - t0)
 
 
-def refinement_study() -> None:
+def refinement_study(levels: list[str]) -> None:
     """Print target motion, press forces and speed of refined full stomachs next to today's."""
     rows: dict[str, Path | None] = {"model of record": None}
     tmp = Path(tempfile.mkdtemp(prefix="mjendo-refined-"))
-    for k, (name, shape) in enumerate(REFINEMENTS.items()):
-        rows[name] = refined_stomach(shape, tmp / str(k))
+    for k, name in enumerate(levels):
+        rows[name] = refined_stomach(REFINEMENTS[name], tmp / str(k))
     for name, d in rows.items():
         st = anatomy.load(d or anatomy.STOMACH_DIR)
         sim = simulator("SE", "full", d)
@@ -217,31 +240,34 @@ def refinement_study() -> None:
             print(f"  press {press_name}: {f:.3f} N", flush=True)
 
 
-def solver_study(caps: list[int]) -> None:
-    """The full stomach's iteration cap against speed, convergence and every fidelity figure.
+def solver_study(caps: list[int], tolerances: list[float]) -> None:
+    """The full stomach's iteration cap and tolerance against speed, convergence and every fidelity figure.
 
     Both iterative solves (the discrete integrator's M + hD + h^2 K and the
-    contact solve) share ``iterations`` and ``tolerance``; MuJoCo counts the
+    contact solve) share ``iterations`` and ``tolerance``. The speed is the
+    bench's contact-rich sweep (DE), where the cap binds; MuJoCo counts the
     steps whose M + hD + h^2 K solve stopped at the cap (``mjWARN_INERTIA``).
     """
     import mujoco
 
     for cap in caps:
-        fid = replace(FIDELITIES["full"], iterations=cap)
-        sim = simulator("SE", fid)
-        rate = physics_rate(sim)
-        flagged = sim.data.warning[mujoco.mjtWarning.mjWARN_INERTIA].number
-        steps = int(round(sim.data.time / sim.model.opt.timestep))
-        holds = [hold_speeds(simulator("SE", fid), p) for p in (PRESSES[1], PRESSES[2])]
-        forces = force_summary(fid)
-        motion = {env: motion_summary(env, fid) for env in ("DE", "UE2")}
-        print(f"\niterations {cap}: {rate:.0f} physics steps/s in an end-on press "
-              f"({rate * sim.model.opt.timestep:.2f}x realtime); M + hD + h^2 K solve at the cap in "
-              f"{flagged}/{steps} steps", flush=True)
-        print("  held presses, tip/wall mm/s: " + ", ".join(f"{t:.2f}/{w:.2f}" for t, w in holds))
-        print("  press forces N: " + ", ".join(f"{f:.4f}" for f in forces.values()))
-        print("  target motion median/max mm: " + ", ".join(
-            f"{env} {m['median_mm']:.2f}/{m['max_mm']:.2f}" for env, m in motion.items()), flush=True)
+        for tol in tolerances:
+            fid = replace(FIDELITIES["full"], iterations=cap, tolerance=tol)
+            sim = simulator("DE", fid)
+            rate, iters = sweep(sim, 3.0)
+            flagged = sim.data.warning[mujoco.mjtWarning.mjWARN_INERTIA].number
+            steps = int(round(sim.data.time / sim.model.opt.timestep))
+            holds = [hold_speeds(simulator("SE", fid), p) for p in PRESSES]
+            forces = force_summary(fid)
+            motion = {env: motion_summary(env, fid) for env in ("DE", "UE1", "UE2")}
+            print(f"\niterations {cap}, tolerance {tol:g}: sweep {rate:.0f} physics steps/s "
+                  f"({rate * sim.model.opt.timestep:.2f}x realtime), solver iterations median "
+                  f"{np.median(iters):.0f}, {np.mean(iters >= cap):.0%} of steps at the cap; "
+                  f"M + hD + h^2 K solve at the cap in {flagged}/{steps} steps", flush=True)
+            print("  held presses, tip/wall mm/s: " + ", ".join(f"{t:.2f}/{w:.2f}" for t, w in holds))
+            print("  press forces N: " + ", ".join(f"{f:.4f}" for f in forces.values()))
+            print("  target motion median/max mm: " + ", ".join(
+                f"{env} {m['median_mm']:.2f}/{m['max_mm']:.2f}" for env, m in motion.items()), flush=True)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -253,15 +279,18 @@ def main(argv: list[str] | None = None) -> int:
     c.add_argument("--young-scale", type=float, help="young's modulus factor of the candidate")
     c.add_argument("--load-gains", type=float, nargs=3, metavar=("DE", "UE1", "UE2"),
                    help="gains on the periodic load of the candidate at 1, 2 and 3 x f0")
-    sub.add_parser("refine", help="discretisation study: the full stomach on finer meshes")
-    sv = sub.add_parser("solver", help="the full stomach's solver iteration cap: speed against every figure")
-    sv.add_argument("--iterations", type=int, nargs="+", default=[1000, 300, 200, 150])
+    rf = sub.add_parser("refine", help="discretisation study: the full stomach on finer meshes")
+    rf.add_argument("--levels", nargs="+", choices=list(REFINEMENTS), default=list(REFINEMENTS),
+                    help="refinement levels to compare with the model of record (default: all)")
+    sv = sub.add_parser("solver", help="the full stomach's iteration cap and tolerance: speed against every figure")
+    sv.add_argument("--iterations", type=int, nargs="+", default=[1000])
+    sv.add_argument("--tolerances", type=float, nargs="+", default=[1e-8, 1e-7, 1e-6])
     args = ap.parse_args(argv)
     if args.cmd == "refine":
-        refinement_study()
+        refinement_study(args.levels)
         return 0
     if args.cmd == "solver":
-        solver_study(args.iterations)
+        solver_study(args.iterations, args.tolerances)
         return 0
     given = {"cellcount": args.cells, "young_scale": args.young_scale, "load_gains": args.load_gains}
     changes = {k: tuple(v) if isinstance(v, list) else v for k, v in given.items() if v}

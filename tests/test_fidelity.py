@@ -24,6 +24,15 @@ def test_a_held_press_comes_to_rest(fid):
         assert tip < 1.0 and wall < 1.0, f"{fid} {press.name}: tip {tip:.2f} mm/s, wall {wall:.2f} mm/s"
 
 
+def test_the_speed_benchmark_sweeps_the_scope_along_the_wall():
+    # make bench's physics figure is only meaningful if its sweep is contact-rich.
+    sim = Simulator("DE", "fast")
+    rate, iters = fidelity.sweep(sim, 1.0)
+    assert rate > 0 and len(iters) == 100
+    assert sim.contact().active and sim.data.ncon >= 2
+    assert 1 <= iters.min() and iters.max() <= sim.model.opt.iterations
+
+
 def test_a_press_pushes_back_harder_the_deeper_it_goes():
     sim = Simulator("SE", "fast")
     shallow, deep = (fidelity.press_force(sim, p) for p in fidelity.PRESSES[:2])

@@ -33,6 +33,9 @@ def twins(batch, env_name, fidelity="fast"):
     return envs
 
 
+SOLVE_TO_CONVERGENCE = 10_000  # iteration cap for single-state comparisons (the presets stop at 1,000)
+
+
 def load_cpu_state(batch, i, d):
     """Copy a CPU MjData's state into world ``i`` (the caller runs Warp's forward afterwards)."""
     for name, v in (("qpos", d.qpos), ("qvel", d.qvel), ("warmstart", d.qacc_warmstart), ("ctrl", d.ctrl)):
@@ -81,11 +84,16 @@ def test_contact_indicator_and_force_agree_for_the_same_state(fidelity):
             break
     batch = BatchedNavigation(2, env="SE", fidelity=fidelity, device="cpu")
     batch.reset()
+    # These are states of a hard insertion: the pyramidal contact solve of the full stomach needs up to ~3,000
+    # iterations there (measured: 5.9-7.4 N across tolerances at the preset's cap of 1,000, 6.77 N converged), so
+    # both solvers get a cap that lets them converge: the test compares force read-outs, not unconverged solves.
+    m.opt.iterations = batch.mw.opt.iterations = SOLVE_TO_CONVERGENCE
     cpu = []
     for i, (qp, qv, t, ws, ctrl) in enumerate(states):
         d.qpos[:], d.qvel[:], d.qacc_warmstart[:], d.ctrl[:], d.time = qp, qv, ws, ctrl, t
         load_cpu_state(batch, i, d)
         mujoco.mj_forward(m, d)
+        assert d.solver_niter[0] < SOLVE_TO_CONVERGENCE, "the CPU solve did not converge"
         cpu.append(env.task.sim.contact().force)
     batch._mjw.forward(batch.mw, batch.d)
     batch._read_contact()

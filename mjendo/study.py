@@ -41,8 +41,17 @@ from mjendo.evaluation import cells, run_trials
 from mjendo.train_config import POLICY_NAMES
 from mjendo.train_config import load as load_config
 
-RESULTS_FILE = "study_trials.csv"
-VALIDATION_FILE = "study_validation.json"
+
+def results_file(fidelity: str) -> str:
+    """A run's study trial rows, one file per stomach, so a full-stomach study keeps the fast one's cache."""
+    return "study_trials.csv" if fidelity == "fast" else f"study_trials_{fidelity}.csv"
+
+
+def validation_file(fidelity: str) -> str:
+    """A run's validation result, one file per stomach (see results_file)."""
+    return "study_validation.json" if fidelity == "fast" else f"study_validation_{fidelity}.json"
+
+
 # Validation (choosing the seed to ship): trials in the policy's own training condition on seeds of their
 # own, disjoint from the evaluation trials (0..N-1) and from training's periodic evaluations (10,000,000+).
 VALIDATION_SEED = 20_000_000
@@ -130,7 +139,7 @@ def eval_seeds(cfg: StudyConfig) -> list[int]:
 
 
 def _read_results(run: Path, cfg: StudyConfig) -> list[dict] | None:
-    path = run / RESULTS_FILE
+    path = run / results_file(cfg.fidelity)
     if not path.exists():
         return None
     with open(path) as f:
@@ -171,7 +180,7 @@ def trial(cfg: StudyConfig, policy: str, seed: int) -> list[dict]:
             trials, _ = run_trials(str(run), env, eval_seeds(cfg), fidelity=cfg.fidelity)
             rows += [{**asdict(t), "controller": policy, "seed_trained": seed, "fidelity": cfg.fidelity,
                       "model": model} for t in trials]
-        _write_rows(run / RESULTS_FILE, rows)
+        _write_rows(run / results_file(cfg.fidelity), rows)
         validate(cfg, policy, run)
         return rows
     finally:
@@ -180,7 +189,7 @@ def trial(cfg: StudyConfig, policy: str, seed: int) -> list[dict]:
 
 def validate(cfg: StudyConfig, policy: str, run: Path) -> dict:
     """Success rate and mean error on the validation trials in the training condition (cached in the run)."""
-    path = run / VALIDATION_FILE
+    path = run / validation_file(cfg.fidelity)
     model = scene.fingerprint(cfg.fidelity)
     if path.exists():
         cached = json.loads(path.read_text())
@@ -354,7 +363,8 @@ def write_outputs(cfg: StudyConfig, rows: list[dict], command: str, wall_s: floa
         d = seeds_dir / f"{p}_seed{s}"
         d.mkdir(parents=True, exist_ok=True)
         run = run_folder(cfg, p, s)
-        for name in (artifacts.META_FILE, RESULTS_FILE, VALIDATION_FILE, "evaluations.csv"):
+        for name in (artifacts.META_FILE, results_file(cfg.fidelity), validation_file(cfg.fidelity),
+                     "evaluations.csv"):
             if (run / name).exists():
                 shutil.copy2(run / name, d / name)
     fig = figures.study_seeds(summary, out / "seeds.png")

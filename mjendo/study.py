@@ -41,15 +41,17 @@ from mjendo.evaluation import cells, run_trials
 from mjendo.train_config import POLICY_NAMES
 from mjendo.train_config import load as load_config
 
-
-def results_file(fidelity: str) -> str:
-    """A run's study trial rows, one file per stomach, so a full-stomach study keeps the fast one's cache."""
-    return "study_trials.csv" if fidelity == "fast" else f"study_trials_{fidelity}.csv"
+RESULTS_FILE = "study_trials.csv"
+VALIDATION_FILE = "study_validation.json"
 
 
-def validation_file(fidelity: str) -> str:
-    """A run's validation result, one file per stomach (see results_file)."""
-    return "study_validation.json" if fidelity == "fast" else f"study_validation_{fidelity}.json"
+def per_stomach(name: str, fidelity: str) -> str:
+    """A run's study file for one stomach: the fast one keeps ``name``, others add their fidelity.
+
+    So a full-stomach study keeps its own cache and never overwrites the fast one's.
+    """
+    stem, ext = name.rsplit(".", 1)
+    return name if fidelity == "fast" else f"{stem}_{fidelity}.{ext}"
 
 
 # Validation (choosing the seed to ship): trials in the policy's own training condition on seeds of their
@@ -139,7 +141,7 @@ def eval_seeds(cfg: StudyConfig) -> list[int]:
 
 
 def _read_results(run: Path, cfg: StudyConfig) -> list[dict] | None:
-    path = run / results_file(cfg.fidelity)
+    path = run / per_stomach(RESULTS_FILE, cfg.fidelity)
     if not path.exists():
         return None
     with open(path) as f:
@@ -180,7 +182,7 @@ def trial(cfg: StudyConfig, policy: str, seed: int) -> list[dict]:
             trials, _ = run_trials(str(run), env, eval_seeds(cfg), fidelity=cfg.fidelity)
             rows += [{**asdict(t), "controller": policy, "seed_trained": seed, "fidelity": cfg.fidelity,
                       "model": model} for t in trials]
-        _write_rows(run / results_file(cfg.fidelity), rows)
+        _write_rows(run / per_stomach(RESULTS_FILE, cfg.fidelity), rows)
         validate(cfg, policy, run)
         return rows
     finally:
@@ -189,7 +191,7 @@ def trial(cfg: StudyConfig, policy: str, seed: int) -> list[dict]:
 
 def validate(cfg: StudyConfig, policy: str, run: Path) -> dict:
     """Success rate and mean error on the validation trials in the training condition (cached in the run)."""
-    path = run / validation_file(cfg.fidelity)
+    path = run / per_stomach(VALIDATION_FILE, cfg.fidelity)
     model = scene.fingerprint(cfg.fidelity)
     if path.exists():
         cached = json.loads(path.read_text())
@@ -363,7 +365,7 @@ def write_outputs(cfg: StudyConfig, rows: list[dict], command: str, wall_s: floa
         d = seeds_dir / f"{p}_seed{s}"
         d.mkdir(parents=True, exist_ok=True)
         run = run_folder(cfg, p, s)
-        for name in (artifacts.META_FILE, results_file(cfg.fidelity), validation_file(cfg.fidelity),
+        for name in (artifacts.META_FILE, *(per_stomach(f, cfg.fidelity) for f in (RESULTS_FILE, VALIDATION_FILE)),
                      "evaluations.csv"):
             if (run / name).exists():
                 shutil.copy2(run / name, d / name)

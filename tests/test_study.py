@@ -136,3 +136,12 @@ def test_an_unreachable_cluster_address_is_a_clear_error(tmp_path):
         StudyConfig(policies=("Q",)).check()
     with pytest.raises(ConfigError, match="distinct"):
         StudyConfig(seeds=(1, 1)).check()
+
+
+def test_each_stomach_keeps_its_own_study_cache():
+    # A full-stomach study once overwrote the fast study's trial files in the same run folders.
+    from mjendo.study import RESULTS_FILE, VALIDATION_FILE, per_stomach
+
+    assert per_stomach(RESULTS_FILE, "fast") == "study_trials.csv"
+    names = {per_stomach(f, fid) for f in (RESULTS_FILE, VALIDATION_FILE) for fid in ("fast", "full")}
+    assert len(names) == 4 and "study_trials_full.csv" in names

@@ -18,6 +18,7 @@ tests:
 from __future__ import annotations
 
 import argparse
+import itertools
 import tempfile
 import time
 from dataclasses import dataclass, replace
@@ -27,6 +28,7 @@ import numpy as np
 
 from mjendo import anatomy, scene
 from mjendo.config import FIDELITIES, Fidelity, StomachShape, scene_config
+from mjendo.scene import SOLVERS
 from mjendo.sim import Simulator
 from mjendo.units import from_mm, to_mm
 
@@ -198,7 +200,8 @@ def sweep_controls(sim: Simulator, k: int) -> None:
 
 def sweep(sim: Simulator, seconds: float, warmup_s: float = 1.0,
           count_iterations: bool = False) -> tuple[float, np.ndarray | None]:
-    """Physics steps/s of the sweep after a warm-up into contact, and (if asked) each step's solver iterations.
+    """Physics steps/s of the sweep after a warm-up into contact, and (if asked) each step's solver iterations
+    and contact count (columns 0 and 1).
 
     Counting costs a few microseconds per step, a few % of the free scene's step: the speed figure skips it.
     """
@@ -207,14 +210,14 @@ def sweep(sim: Simulator, seconds: float, warmup_s: float = 1.0,
         sweep_controls(sim, k)
         sim.step(1)
     n = int(round(seconds / dt))
-    iters = np.zeros(n, int) if count_iterations else None
+    counts = np.zeros((n, 2), int) if count_iterations else None
     t0 = time.perf_counter()
     for k in range(n):
         sweep_controls(sim, k)
         sim.step(1)
-        if iters is not None:
-            iters[k] = sim.data.solver_niter[:max(1, sim.data.nisland)].sum()
-    return n / (time.perf_counter() - t0), iters
+        if counts is not None:
+            counts[k] = sim.data.solver_niter[:max(1, sim.data.nisland)].sum(), sim.data.ncon
+    return n / (time.perf_counter() - t0), counts
 
 
 def physics_rate(sim: Simulator, seconds: float = 1.0) -> float:
@@ -245,8 +248,9 @@ def refinement_study(levels: list[str]) -> None:
             print(f"  press {press_name}: {f:.3f} N", flush=True)
 
 
-def solver_study(caps: list[int], tolerances: list[float]) -> None:
-    """The full stomach's iteration cap and tolerance against speed, convergence and every fidelity figure.
+def solver_study(caps: list[int], tolerances: list[float], fidelity: str = "full",
+                 solvers: tuple[str, ...] = ()) -> None:
+    """A stomach's solver, iteration cap and tolerance against speed, convergence and every fidelity figure.
 
     Both iterative solves (the discrete integrator's M + hD + h^2 K and the
     contact solve) share ``iterations`` and ``tolerance``. The speed is the
@@ -255,24 +259,25 @@ def solver_study(caps: list[int], tolerances: list[float]) -> None:
     """
     import mujoco
 
-    for cap in caps:
-        for tol in tolerances:
-            fid = replace(FIDELITIES["full"], iterations=cap, tolerance=tol)
-            sim = simulator("DE", fid)
-            rate, iters = sweep(sim, 3.0, count_iterations=True)
-            flagged = sim.data.warning[mujoco.mjtWarning.mjWARN_INERTIA].number
-            steps = int(round(sim.data.time / sim.model.opt.timestep))
-            holds = [hold_speeds(simulator("SE", fid), p) for p in PRESSES]
-            forces = force_summary(fid)
-            motion = {env: motion_summary(env, fid) for env in ("DE", "UE1", "UE2")}
-            print(f"\niterations {cap}, tolerance {tol:g}: sweep {rate:.0f} physics steps/s "
-                  f"({rate * sim.model.opt.timestep:.2f}x realtime), solver iterations median "
-                  f"{np.median(iters):.0f}, {np.mean(iters >= cap):.0%} of steps at the cap; "
-                  f"M + hD + h^2 K solve at the cap in {flagged}/{steps} steps", flush=True)
-            print("  held presses, tip/wall mm/s: " + ", ".join(f"{t:.2f}/{w:.2f}" for t, w in holds))
-            print("  press forces N: " + ", ".join(f"{f:.4f}" for f in forces.values()))
-            print("  target motion median/max mm: " + ", ".join(
-                f"{env} {m['median_mm']:.2f}/{m['max_mm']:.2f}" for env, m in motion.items()), flush=True)
+    preset = FIDELITIES[fidelity]
+    for solver, cap, tol in itertools.product(solvers or (preset.solver,), caps, tolerances):
+        fid = replace(preset, solver=solver, iterations=cap, tolerance=tol)
+        sim = simulator("DE", fid)
+        rate, counts = sweep(sim, 3.0, count_iterations=True)
+        iters = counts[:, 0]
+        flagged = sim.data.warning[mujoco.mjtWarning.mjWARN_INERTIA].number
+        steps = int(round(sim.data.time / sim.model.opt.timestep))
+        holds = [hold_speeds(simulator("SE", fid), p) for p in PRESSES]
+        forces = force_summary(fid)
+        motion = {env: motion_summary(env, fid) for env in ("DE", "UE1", "UE2")}
+        print(f"\n{fidelity}, {solver}, iterations {cap}, tolerance {tol:g}: sweep {rate:.0f} physics steps/s "
+              f"({rate * sim.model.opt.timestep:.2f}x realtime), solver iterations median "
+              f"{np.median(iters):.0f}, {np.mean(iters >= cap):.0%} of steps at the cap; "
+              f"M + hD + h^2 K solve at the cap in {flagged}/{steps} steps", flush=True)
+        print("  held presses, tip/wall mm/s: " + ", ".join(f"{t:.2f}/{w:.2f}" for t, w in holds))
+        print("  press forces N: " + ", ".join(f"{f:.4f}" for f in forces.values()))
+        print("  target motion median/max mm: " + ", ".join(
+            f"{env} {m['median_mm']:.2f}/{m['max_mm']:.2f}" for env, m in motion.items()), flush=True)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -287,7 +292,9 @@ def main(argv: list[str] | None = None) -> int:
     rf = sub.add_parser("refine", help="discretisation study: the full stomach on finer meshes")
     rf.add_argument("--levels", nargs="+", choices=list(REFINEMENTS), default=list(REFINEMENTS),
                     help="refinement levels to compare with the model of record (default: all)")
-    sv = sub.add_parser("solver", help="the full stomach's iteration cap and tolerance: speed against every figure")
+    sv = sub.add_parser("solver", help="a stomach's solver, iteration cap and tolerance: speed against every figure")
+    sv.add_argument("--fidelity", choices=list(FIDELITIES), default="full")
+    sv.add_argument("--solvers", nargs="+", choices=SOLVERS, default=[], help="default: the preset's")
     sv.add_argument("--iterations", type=int, nargs="+", default=[1000])
     sv.add_argument("--tolerances", type=float, nargs="+", default=[1e-8, 1e-7, 1e-6])
     args = ap.parse_args(argv)
@@ -295,7 +302,7 @@ def main(argv: list[str] | None = None) -> int:
         refinement_study(args.levels)
         return 0
     if args.cmd == "solver":
-        solver_study(args.iterations, args.tolerances)
+        solver_study(args.iterations, args.tolerances, args.fidelity, tuple(args.solvers))
         return 0
     given = {"cellcount": args.cells, "young_scale": args.young_scale, "load_gains": args.load_gains}
     changes = {k: tuple(v) if isinstance(v, list) else v for k, v in given.items() if v}

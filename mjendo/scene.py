@@ -58,7 +58,7 @@ def _header(cfg: SceneConfig) -> str:
     fid = cfg.fidelity
     return f"""<mujoco model="mjendo {scene_name(cfg)}">
   <compiler angle="radian" autolimits="true"/>
-  <option timestep="{fid.timestep_s}" integrator="discrete" solver="CG" iterations="{fid.iterations}"
+  <option timestep="{fid.timestep_s}" integrator="discrete" solver="{fid.solver}" iterations="{fid.iterations}"
           tolerance="{fid.tolerance:g}" gravity="0 0 {-cfg.gravity}" cone="pyramidal"/>
   <size memory="64M"/>
   <visual>
@@ -99,6 +99,9 @@ def _flexcomp(cfg: SceneConfig, st: anatomy.Stomach, msh: Path) -> str:
 </worldbody></mujoco>"""
 
 
+SOLVERS = ("CG", "Newton")
+
+
 def validate(cfg: SceneConfig) -> None:
     """Reject physics parameters that are known to be unusable, naming the fix."""
     mat, fid = cfg.material, cfg.fidelity
@@ -111,6 +114,9 @@ def validate(cfg: SceneConfig) -> None:
         raise ConfigError("damping and drag_per_s must be >= 0 and density > 0")
     if not 0.0 < fid.timestep_s <= 0.05:
         raise ConfigError(f"timestep must be in (0, 50 ms] (got {fid.timestep_s} s)")
+    if fid.solver not in SOLVERS:
+        raise ConfigError(f"unknown solver {fid.solver!r}; valid: {', '.join(SOLVERS)} (PGS does not run MuJoCo's "
+                          "discrete integrator with flex)")
 
 
 # A stomach sagging more than this under gravity has collapsed: too soft to use.

@@ -27,9 +27,12 @@ def test_a_held_press_comes_to_rest(fid):
 def test_the_speed_benchmark_sweeps_the_scope_along_the_wall():
     # make bench's physics figure is only meaningful if its sweep is contact-rich.
     sim = Simulator("DE", "fast")
-    rate, iters = fidelity.sweep(sim, 1.0, count_iterations=True)
+    rate, counts = fidelity.sweep(sim, 1.0, count_iterations=True)
+    iters, contacts = counts.T
     assert rate > 0 and len(iters) == 100
-    assert sim.contact().active and sim.data.ncon >= 2
+    # Measured: the scope touches the wall in 80 % of the sweep's steps (6 contacts, median; the sweep
+    # restarts from insertion 0, so it leaves the wall for a moment), with either solver.
+    assert np.mean(contacts >= 2) >= 0.6 and np.median(contacts) >= 4
     assert 1 <= iters.min() and iters.max() <= sim.model.opt.iterations
 
 

@@ -76,6 +76,8 @@ def test_unusable_physics_parameters_are_rejected_with_the_fix():
         scene.scene_xml("DE", "fast", material=Material(young_pa=100.0))
     with pytest.raises(ConfigError, match="poisson"):
         scene.build_spec(scene_config("DE", material=Material(poisson=0.5)))
+    with pytest.raises(ConfigError, match="unknown solver 'PGS'; valid: CG, Newton"):
+        scene.build_spec(scene_config("DE", replace(FIDELITIES["fast"], solver="PGS")))
 
 
 def test_divergence_raises_our_error():

@@ -130,11 +130,17 @@ class BatchedNavigation:
         with wp.ScopedDevice(self.wp_device):
             self.mw = mjw.put_model(m)
             if hasattr(self.mw.opt, "warn_overflow"):
-                self.mw.opt.warn_overflow = 0  # the solver's iteration cap would print every step: see step()
+                self.mw.opt.warn_overflow = 0  # Warp would print per world-step; _check_step counts instead
             self.d = mjw.make_data(m, nworld=n_worlds, nconmax=nconmax or NCONMAX, njmax=njmax or NJMAX)
-        self._overflow_bits = int(mjw.OverflowType.ALL & ~(mjw.OverflowType.ITERATIONS
-                                                             | mjw.OverflowType.LS_ITERATIONS))
-        self.overflows = 0  # world-steps that lost contacts or constraint rows (buffers too small)
+        # Warp's per-world flags: lost contacts or constraint rows (buffers too small), a solve stopped at the
+        # iteration cap (unconverged), a line search stopped at its own cap (not counted).
+        iterations = mjw.OverflowType.ITERATIONS
+        self._overflow_bits = int(mjw.OverflowType.ALL & ~(iterations | mjw.OverflowType.LS_ITERATIONS))
+        self._solver_bits = int(iterations)
+        self.overflows = 0  # world control steps that lost contacts or constraint rows
+        # World control steps in which a constraint solve stopped at the iteration cap, of world_steps: the
+        # scene's solver decides this (Newton in the fast stomach: never measured; docs/backends.md).
+        self.solver_capped = self.world_steps = 0
         self._mjw, self._wp, self._torch = mjw, wp, torch
         t = self._t
         self._overflow_flags = self._t(self.d.overflow)  # zero-copy view, made once: step() reads it every step
@@ -256,18 +262,27 @@ class BatchedNavigation:
         self._mjw.step(self.mw, self.d)
         self.clock += self.dt
 
-    def _count_overflows(self) -> None:
-        """Warn (once) when a world ran out of contact or constraint buffers: it silently lost contacts."""
-        overflow = self._overflow_flags
-        lost = (overflow & self._overflow_bits) != 0
-        n = int(lost.sum())
-        if n:
+    def _check_step(self) -> None:
+        """Count the worlds whose solver stopped at its cap; warn (once) when a world lost contacts to full buffers."""
+        flags = self._overflow_flags
+        lost, capped, flagged = self._torch.stack([((flags & self._overflow_bits) != 0).sum(),
+                                                   ((flags & self._solver_bits) != 0).sum(),
+                                                   (flags != 0).sum()]).tolist()
+        self.solver_capped += capped
+        self.world_steps += self.n
+        if lost:
             if not self.overflows:
-                warnings.warn(f"{n} of {self.n} worlds ran out of contact/constraint buffers (nconmax="
+                warnings.warn(f"{lost} of {self.n} worlds ran out of contact/constraint buffers (nconmax="
                               f"{self.d.naconmax // self.n}, njmax={self.d.njmax}) and lost contacts: pass larger "
                               "nconmax/njmax to BatchedNavigation", RuntimeWarning, stacklevel=3)
-            self.overflows += n
-            overflow.zero_()
+            self.overflows += lost
+        if flagged:
+            flags.zero_()
+
+    @property
+    def capped_fraction(self) -> float:
+        """Share of world-steps whose constraint solve stopped at the iteration cap, unconverged."""
+        return self.solver_capped / max(1, self.world_steps)
 
     def _read_contact(self) -> None:
         """Resultant endoscope-stomach contact force per world, as mjendo.sim.Simulator.contact computes it."""
@@ -336,7 +351,7 @@ class BatchedNavigation:
         self.prev_axial = a[:, 4].clone()
         self._write_controls()
         self._physics()
-        self._count_overflows()
+        self._check_step()
         self.steps += 1
         qvel = self.qvel.double()
         unstable = ~torch.isfinite(qvel).all(dim=1) | (qvel.abs().max(dim=1).values >= MAX_SPEED)

@@ -132,6 +132,8 @@ def fidelity_figure(env: str, fidelity: str) -> dict:
 
 def batched_figure(env: str, fidelity: str, worlds: int, steps: int) -> dict:
     """Env steps/s of the batched backend (task logic included) at one world count, on the device it finds."""
+    import mujoco
+
     from mjendo.batch import BatchedNavigation
 
     b = BatchedNavigation(worlds, env=env, fidelity=fidelity)
@@ -148,7 +150,9 @@ def batched_figure(env: str, fidelity: str, worlds: int, steps: int) -> dict:
     b._wp.synchronize()
     rate = steps * worlds / (time.perf_counter() - t0)
     return {"figure": "batched", "env": env, "fidelity": fidelity, "worlds": worlds, "device": b.wp_device,
-            "env_steps_per_s": rate, "physics_steps_per_s": rate * b.core.substeps}
+            "env_steps_per_s": rate, "physics_steps_per_s": rate * b.core.substeps,
+            "solver_capped": b.capped_fraction,
+            "solver": mujoco.mjtSolver(b.core.sim.model.opt.solver).name.removeprefix("mjSOL_")}
 
 
 def _child(args) -> None:
@@ -192,13 +196,14 @@ def _batched_table(max_worlds: int | None, min_worlds: int, fidelities: list[str
     gpu = wp.is_cuda_available()
     top = max_worlds or (8192 if gpu else 8)
     counts = [n for n in (1, 2, 8, 64, 256, 1024, 2048, 4096, 8192) if min_worlds <= n <= top]
-    print(f"\n{'batched (MuJoCo Warp)':<24}{'worlds':>8}{'env steps/s':>14}{'physics steps/s':>18}   device")
+    print(f"\n{'batched (MuJoCo Warp)':<24}{'worlds':>8}{'env steps/s':>14}{'physics steps/s':>18}"
+          f"{'solves at cap':>15}   device")
     for fid in fidelities:
         for n in counts:
             r = _run(["--figure", "batched", "--env", "DE", "--fidelity", fid, "--worlds", str(n), "--steps",
                       "20" if gpu else "3"])
-            print(f"{'DE ' + fid:<24}{n:>8}{r['env_steps_per_s']:>14.0f}{r['physics_steps_per_s']:>18.0f}   "
-                  f"{r['device']}", flush=True)
+            print(f"{'DE ' + fid + ' (' + r['solver'] + ')':<24}{n:>8}{r['env_steps_per_s']:>14.0f}"
+                  f"{r['physics_steps_per_s']:>18.0f}{r['solver_capped']:>14.1%}   {r['device']}", flush=True)
 
 
 def _fidelity_table() -> None:

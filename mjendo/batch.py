@@ -14,6 +14,7 @@ Needs the optional extra ``mjendo[warp]`` (``mujoco-warp``, ``warp-lang``).
 
 from __future__ import annotations
 
+import copy
 import os
 import sys
 import warnings
@@ -33,6 +34,7 @@ from mjendo.config import (
     TaskConfig,
     task_config,
 )
+from mjendo.scene import SOLVERS
 from mjendo.sim import MAX_SPEED
 from mjendo.task import NavigationTask
 from mjendo.units import MM_PER_M
@@ -100,6 +102,22 @@ def uniform(seed, counter, stream: int):
 NCONMAX, NJMAX = 256, 1024
 
 
+def with_solver(m: mujoco.MjModel, solver: str | None) -> mujoco.MjModel:
+    """The model, or a copy solving its constraints with another solver (the same physics, to the tolerance).
+
+    On a GPU a step waits for its slowest world: CG in the full stomach stops at its cap on about 12 % of
+    contact world-steps, Newton converges in at most 7 iterations but factors an 822-dof Hessian per world;
+    which is faster there is for ``python -m mjendo.bench --only batched --batched-solvers`` to say.
+    """
+    if solver is None:
+        return m
+    if solver not in SOLVERS:
+        raise ConfigError(f"unknown solver {solver!r}; valid: {', '.join(SOLVERS)}")
+    out = copy.copy(m)
+    out.opt.solver = mujoco.mjtSolver.mjSOL_NEWTON if solver == "Newton" else mujoco.mjtSolver.mjSOL_CG
+    return out
+
+
 @dataclass
 class BatchStep:
     """One step of all worlds (tensors on the batch's device, leading dimension N)."""
@@ -112,12 +130,16 @@ class BatchStep:
 
 
 class BatchedNavigation:
-    """``n_worlds`` copies of one task condition, stepped together; each world resets itself when it ends."""
+    """``n_worlds`` copies of one task condition, stepped together; each world resets itself when it ends.
+
+    ``solver`` ("CG" or "Newton") overrides the scene's constraint solver for the worlds (see :func:`with_solver`);
+    ``nconmax``/``njmax`` size the contact and constraint buffers per world.
+    """
 
     render_mode = None  # no rendering here: record with the CPU env (mjendo.viewer)
 
     def __init__(self, n_worlds: int, cfg: TaskConfig | None = None, device: str | None = None, seed: int = 0,
-                 nconmax: int | None = None, njmax: int | None = None, **task):
+                 nconmax: int | None = None, njmax: int | None = None, solver: str | None = None, **task):
         wp, mjw, torch = _require()
         if isinstance(n_worlds, bool) or not isinstance(n_worlds, int) or n_worlds < 1:
             raise ConfigError(f"n_worlds must be a whole number >= 1, not {n_worlds!r}")
@@ -128,7 +150,7 @@ class BatchedNavigation:
         self.device = torch.device(str(self.wp_device))
         self.n = n_worlds
         with wp.ScopedDevice(self.wp_device):
-            self.mw = mjw.put_model(m)
+            self.mw = mjw.put_model(with_solver(m, solver))
             if hasattr(self.mw.opt, "warn_overflow"):
                 self.mw.opt.warn_overflow = 0  # Warp would print per world-step; _check_step counts instead
             self.d = mjw.make_data(m, nworld=n_worlds, nconmax=nconmax or NCONMAX, njmax=njmax or NJMAX)

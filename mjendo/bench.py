@@ -10,6 +10,7 @@ figures of docs/physics.md, protocols in :mod:`mjendo.fidelity`).
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import os
 import statistics
@@ -130,13 +131,13 @@ def fidelity_figure(env: str, fidelity: str) -> dict:
     return {"figure": "fidelity", "env": env, "fidelity": fidelity, **fid_protocols.motion_summary(env, fidelity)}
 
 
-def batched_figure(env: str, fidelity: str, worlds: int, steps: int) -> dict:
+def batched_figure(env: str, fidelity: str, worlds: int, steps: int, solver: str | None = None) -> dict:
     """Env steps/s of the batched backend (task logic included) at one world count, on the device it finds."""
     import mujoco
 
     from mjendo.batch import BatchedNavigation
 
-    b = BatchedNavigation(worlds, env=env, fidelity=fidelity)
+    b = BatchedNavigation(worlds, env=env, fidelity=fidelity, solver=solver)
     b.reset()
     rng = np.random.default_rng(0)
     actions = rng.uniform(-0.4, 0.4, (steps + 2, worlds, 5))
@@ -152,7 +153,7 @@ def batched_figure(env: str, fidelity: str, worlds: int, steps: int) -> dict:
     return {"figure": "batched", "env": env, "fidelity": fidelity, "worlds": worlds, "device": b.wp_device,
             "env_steps_per_s": rate, "physics_steps_per_s": rate * b.core.substeps,
             "solver_capped": b.capped_fraction,
-            "solver": mujoco.mjtSolver(b.core.sim.model.opt.solver).name.removeprefix("mjSOL_")}
+            "solver": "Newton" if int(b.mw.opt.solver) == int(mujoco.mjtSolver.mjSOL_NEWTON) else "CG"}
 
 
 def _child(args) -> None:
@@ -165,7 +166,7 @@ def _child(args) -> None:
     elif args.figure == "env":
         out = env_figure(args.env, args.fidelity, args.repeats, args.steps)
     elif args.figure == "batched":
-        out = batched_figure(args.env, args.fidelity, args.worlds, args.steps)
+        out = batched_figure(args.env, args.fidelity, args.worlds, args.steps, args.solver)
     else:
         out = fidelity_figure(args.env, args.fidelity)
     print(json.dumps(out))
@@ -186,7 +187,7 @@ def _has_warp() -> bool:
     return importlib.util.find_spec("mujoco_warp") is not None
 
 
-def _batched_table(max_worlds: int | None, min_worlds: int, fidelities: list[str]) -> None:
+def _batched_table(max_worlds: int | None, min_worlds: int, fidelities: list[str], solvers: list[str]) -> None:
     """MuJoCo Warp: env steps/s (task logic included) against the number of worlds, DE fast and full."""
     import warp as wp
 
@@ -198,12 +199,11 @@ def _batched_table(max_worlds: int | None, min_worlds: int, fidelities: list[str
     counts = [n for n in (1, 2, 8, 64, 256, 1024, 2048, 4096, 8192) if min_worlds <= n <= top]
     print(f"\n{'batched (MuJoCo Warp)':<24}{'worlds':>8}{'env steps/s':>14}{'physics steps/s':>18}"
           f"{'solves at cap':>15}   device")
-    for fid in fidelities:
-        for n in counts:
-            r = _run(["--figure", "batched", "--env", "DE", "--fidelity", fid, "--worlds", str(n), "--steps",
-                      "20" if gpu else "3"])
-            print(f"{'DE ' + fid + ' (' + r['solver'] + ')':<24}{n:>8}{r['env_steps_per_s']:>14.0f}"
-                  f"{r['physics_steps_per_s']:>18.0f}{r['solver_capped']:>14.1%}   {r['device']}", flush=True)
+    for fid, solver, n in itertools.product(fidelities, solvers or [None], counts):
+        r = _run(["--figure", "batched", "--env", "DE", "--fidelity", fid, "--worlds", str(n), "--steps",
+                  "20" if gpu else "3"] + (["--solver", solver] if solver else []))
+        print(f"{'DE ' + fid + ' (' + r['solver'] + ')':<24}{n:>8}{r['env_steps_per_s']:>14.0f}"
+              f"{r['physics_steps_per_s']:>18.0f}{r['solver_capped']:>14.1%}   {r['device']}", flush=True)
 
 
 def _fidelity_table() -> None:
@@ -233,6 +233,9 @@ def main(argv: list[str] | None = None) -> int:
                     "8192 on a GPU)")
     ap.add_argument("--min-worlds", type=int, default=1, help="batched figures: smallest world count")
     ap.add_argument("--batched-fidelities", default="fast,full", help="batched figures: stomachs, comma-separated")
+    ap.add_argument("--batched-solvers", default="", help="batched figures: constraint solvers to compare, "
+                    "comma-separated (CG, Newton; default: each scene's own)")
+    ap.add_argument("--solver", help=argparse.SUPPRESS)
     ap.add_argument("--vec-env", default="subproc", choices=["subproc", "dummy"])
     ap.add_argument("--n-envs", type=int, help="training figure: environments (default: policy E's config)")
     ap.add_argument("--env", default="DE")
@@ -281,7 +284,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.only in (None, "fidelity"):
         _fidelity_table()
     if args.only == "batched" or (args.only is None and _has_warp()):
-        _batched_table(args.max_worlds, args.min_worlds, args.batched_fidelities.split(","))
+        _batched_table(args.max_worlds, args.min_worlds, args.batched_fidelities.split(","),
+                       [x for x in args.batched_solvers.split(",") if x])
     return 0
 
 

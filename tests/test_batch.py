@@ -326,6 +326,8 @@ def test_bad_batch_arguments():
 
     with pytest.raises(ConfigError, match="n_worlds must be a whole number >= 1"):
         BatchedNavigation(0, env="FE", device="cpu")
+    with pytest.raises(ConfigError, match="unknown solver 'PGS'; valid: CG, Newton"):
+        BatchedNavigation(1, env="FE", device="cpu", solver="PGS")
     b = BatchedNavigation(1, env="FE", device="cpu")
     b.reset()
     with pytest.raises(ValueError, match="NaN"):
@@ -354,6 +356,8 @@ def test_the_fast_stomachs_solver_converges_and_a_starved_one_is_counted():
         most = max(most, int(batch._t(batch.d.solver_niter)[0]))
     assert touched >= 5 and batch.world_steps == 45
     assert batch.solver_capped == 0 and most < 50
+    cg = BatchedNavigation(1, env="SE", device="cpu", solver="CG")  # the override reaches Warp, not the CPU task
+    assert int(cg.mw.opt.solver) == int(mujoco.mjtSolver.mjSOL_CG) != int(cg.core.sim.model.opt.solver)
     batch.mw.opt.iterations = 1  # starved: the solves stop unconverged, and the batch counts them
     batch.step(np.array([[0, 0, 0, 0, 0.4]]))
     assert batch.solver_capped == 1 and batch.capped_fraction == pytest.approx(1 / 46)

@@ -212,27 +212,50 @@ class BatchedNavigation:
         return self._wp.to_torch(arr)
 
     def _start_states(self) -> dict:
-        """The CPU task's start snapshots (one per load phase) as tensors: qpos, qvel, act, time, warm start."""
+        """The CPU task's start snapshots (one per load phase) as tensors, with what its first observation reads.
+
+        qpos, qvel, act, time, warm start to restart a world; tip position and velocity, cable lengths, contact
+        and force, and every listed target's position, computed by the CPU task's reset (``mj_forward``) once per
+        snapshot, so a restarting world needs no forward pass of its own (it cost as much as a physics step).
+        """
         torch, core = self._torch, self.core
-        m = core.sim.model
-        data = mujoco.MjData(m)
-        fields = {"qpos": [], "qvel": [], "act": [], "time": [], "warmstart": [], "ctrl": []}
+        sim = core.sim
+        m, data = sim.model, sim.data
+        fields: dict[str, list] = {k: [] for k in ("qpos", "qvel", "act", "time", "warmstart", "tip", "tip_vel",
+                                                   "cable", "contact", "force", "targets")}
         for state in core._starts:
             mujoco.mj_setState(m, data, state, mujoco.mjtState.mjSTATE_INTEGRATION)
+            sim.set_controls(np.zeros(4), 0.0)
+            mujoco.mj_forward(m, data)
+            reading = sim.contact()
+            targets = core._fe_targets[core.targets] if core._fe_targets is not None else sim.vertices(core.targets)
             for k, v in (("qpos", data.qpos), ("qvel", data.qvel), ("act", data.act), ("time", [data.time]),
-                         ("warmstart", data.qacc_warmstart), ("ctrl", data.ctrl)):
+                         ("warmstart", data.qacc_warmstart), ("tip", sim.tip_pos()), ("tip_vel", sim.tip_vel()),
+                         ("cable", sim.cable_lengths()), ("contact", [float(reading.active)]),
+                         ("force", reading.force), ("targets", targets)):
                 fields[k].append(np.array(v, dtype=np.float64))
         return {k: torch.as_tensor(np.stack(v), device=self.device) for k, v in fields.items()}
 
     # ------------------------------------------------------------------ episodes
     def reset(self, mask=None):
-        """Start new episodes in the worlds of ``mask`` (all by default): a drawn load phase and target."""
+        """Start new episodes in the worlds of ``mask`` (all by default): a drawn load phase and target.
+
+        Returns every world's observation. Warp's derived data (positions, contacts) of a restarted world stay
+        those of before its restart until its next step, which recomputes them first.
+        """
         torch = self._torch
         if mask is None:
             mask = torch.ones(self.n, dtype=torch.bool, device=self.device)
         idx = torch.nonzero(mask).squeeze(1)
-        if idx.numel() == 0:
-            return self.observation()
+        obs = self.observation() if idx.numel() < self.n else torch.empty(self.n, self.core.obs_size,
+                                                                           device=self.device)
+        if idx.numel():
+            obs[idx] = self._restart(idx)
+        return obs
+
+    def _restart(self, idx):
+        """Restart the worlds ``idx`` from drawn start snapshots; their first observations, from the tables."""
+        torch = self._torch
         seed, ep = self.world_seed[idx], self.episodes[idx]
         n_starts = self._starts["qpos"].shape[0]
         phase = (uniform(seed, ep, 1) * n_starts).long().clamp(max=n_starts - 1) if self.cfg.randomize_phase \
@@ -253,10 +276,11 @@ class BatchedNavigation:
         self.steps[idx] = 0
         self.episode_return[idx] = 0.0
         self.episodes[idx] += 1
+        self.contact[idx] = st["contact"][phase, 0] > 0
+        self.force[idx] = st["force"][phase]
         self._write_controls()
-        self._mjw.forward(self.mw, self.d)
-        self._read_contact()
-        return self.observation()
+        return self._observe(st["targets"][phase, pick] - st["tip"][phase], st["tip_vel"][phase], st["cable"][phase],
+                             self.prev_axial[idx], self.contact[idx], self.force[idx])
 
     # ------------------------------------------------------------------ physics
     def _write_controls(self) -> None:
@@ -346,13 +370,18 @@ class BatchedNavigation:
         return verts[self._torch.arange(self.n, device=self.device), adr + self.target]
 
     def observation(self, delta=None):
-        torch = self._torch
+        """Every world's observation after its last step (``delta`` = target - tip if already known, m)."""
         if delta is None:
             delta = self.target_pos() - self.tip_pos()
         cable = self._t(self.d.ten_length)[:, self.cable_ten].double()
-        blocks = [delta * MM_PER_M, self.tip_vel() * MM_PER_M, cable * MM_PER_M, self.prev_axial[:, None]]
+        return self._observe(delta, self.tip_vel(), cable, self.prev_axial, self.contact, self.force)
+
+    def _observe(self, delta, tip_vel, cable, prev_axial, contact, force):
+        """The CPU task's observation vector, row by row, from its parts (SI units in, millimetres out)."""
+        torch = self._torch
+        blocks = [delta * MM_PER_M, tip_vel * MM_PER_M, cable * MM_PER_M, prev_axial[:, None]]
         if self.cfg.force_obs:
-            blocks += [self.contact[:, None].double(), self.force / self.cfg.force_ref_n]
+            blocks += [contact[:, None].double(), force / self.cfg.force_ref_n]
         obs = torch.cat(blocks, dim=1).float()
         return torch.maximum(torch.minimum(obs, self.obs_high), self.obs_low)
 
@@ -397,7 +426,8 @@ class BatchedNavigation:
                 "episode_return": self.episode_return.clone(), "episode_length": self.steps.clone(),
                 "final_obs": obs.clone()}
         if done.any():
-            obs = torch.where(done[:, None], self.reset(done), obs)
+            idx = torch.nonzero(done).squeeze(1)
+            obs[idx] = self._restart(idx)
         return BatchStep(obs, reward, terminated, truncated, info)
 
 

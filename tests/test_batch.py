@@ -145,6 +145,24 @@ def test_worlds_reset_themselves_with_their_own_seeds():
     assert np.isfinite(r.info["final_obs"].numpy()).all()
 
 
+def test_a_restarted_world_observes_what_a_forward_pass_and_the_cpu_task_give():
+    # Restarts take their first observation from tables the CPU task's reset computed per start snapshot, not
+    # from a forward pass of every world (which cost as much as a physics step): the same numbers.
+    batch = BatchedNavigation(2, task_config(env="DE", max_steps=1, force_obs=True), device="cpu", seed=5)
+    batch.reset()
+    r = batch.step(np.tile([0, 0, 0, 0, 0.2], (2, 1)))
+    assert r.truncated.all() and (batch.steps == 0).all()  # every world restarted within the step
+    restarted = r.obs.numpy()
+    cpu = np.array([e.task.observation() for e in twins(batch, "DE")])
+    np.testing.assert_allclose(restarted, cpu, atol=1e-4)
+    batch._mjw.forward(batch.mw, batch.d)
+    batch._read_contact()
+    warp = batch.observation().numpy()
+    assert np.abs(warp[:, 0:3] - restarted[:, 0:3]).max() < POS_MM
+    assert np.abs(warp[:, 3:6] - restarted[:, 3:6]).max() < VEL_MM_S
+    assert np.abs(warp[:, 6:] - restarted[:, 6:]).max() < 1e-3
+
+
 def test_counter_based_draws_are_uniform_and_independent():
     import torch
 

@@ -150,10 +150,11 @@ class BatchedNavigation:
         self.device = torch.device(str(self.wp_device))
         self.n = n_worlds
         with wp.ScopedDevice(self.wp_device):
-            self.mw = mjw.put_model(with_solver(m, solver))
+            solved = with_solver(m, solver)
+            self.mw = mjw.put_model(solved)
             if hasattr(self.mw.opt, "warn_overflow"):
                 self.mw.opt.warn_overflow = 0  # Warp would print per world-step; _check_step counts instead
-            self.d = mjw.make_data(m, nworld=n_worlds, nconmax=nconmax or NCONMAX, njmax=njmax or NJMAX)
+            self.d = mjw.make_data(solved, nworld=n_worlds, nconmax=nconmax or NCONMAX, njmax=njmax or NJMAX)
         # Warp's per-world flags: lost contacts or constraint rows (buffers too small), a solve stopped at the
         # iteration cap (unconverged), a line search stopped at its own cap (not counted).
         iterations = mjw.OverflowType.ITERATIONS
@@ -161,7 +162,7 @@ class BatchedNavigation:
         self._solver_bits = int(iterations)
         self.overflows = 0  # world control steps that lost contacts or constraint rows
         # World control steps in which a constraint solve stopped at the iteration cap, of world_steps: the
-        # scene's solver decides this (Newton in the fast stomach: never measured; docs/backends.md).
+        # scene's solver decides this (Newton in the fast stomach: none seen so far; docs/backends.md).
         self.solver_capped = self.world_steps = 0
         self._mjw, self._wp, self._torch = mjw, wp, torch
         t = self._t

@@ -34,7 +34,7 @@ from mjendo.config import (
     TaskConfig,
     task_config,
 )
-from mjendo.scene import SOLVERS
+from mjendo.scene import solver_id
 from mjendo.sim import MAX_SPEED
 from mjendo.task import NavigationTask
 from mjendo.units import MM_PER_M
@@ -111,10 +111,8 @@ def with_solver(m: mujoco.MjModel, solver: str | None) -> mujoco.MjModel:
     """
     if solver is None:
         return m
-    if solver not in SOLVERS:
-        raise ConfigError(f"unknown solver {solver!r}; valid: {', '.join(SOLVERS)}")
     out = copy.copy(m)
-    out.opt.solver = mujoco.mjtSolver.mjSOL_NEWTON if solver == "Newton" else mujoco.mjtSolver.mjSOL_CG
+    out.opt.solver = solver_id(solver)
     return out
 
 

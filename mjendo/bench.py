@@ -133,9 +133,8 @@ def fidelity_figure(env: str, fidelity: str) -> dict:
 
 def batched_figure(env: str, fidelity: str, worlds: int, steps: int, solver: str | None = None) -> dict:
     """Env steps/s of the batched backend (task logic included) at one world count, on the device it finds."""
-    import mujoco
-
     from mjendo.batch import BatchedNavigation
+    from mjendo.scene import SOLVERS
 
     b = BatchedNavigation(worlds, env=env, fidelity=fidelity, solver=solver)
     b.reset()
@@ -153,7 +152,7 @@ def batched_figure(env: str, fidelity: str, worlds: int, steps: int, solver: str
     return {"figure": "batched", "env": env, "fidelity": fidelity, "worlds": worlds, "device": b.wp_device,
             "env_steps_per_s": rate, "physics_steps_per_s": rate * b.core.substeps,
             "solver_capped": b.capped_fraction,
-            "solver": "Newton" if int(b.mw.opt.solver) == int(mujoco.mjtSolver.mjSOL_NEWTON) else "CG"}
+            "solver": next(k for k, v in SOLVERS.items() if int(v) == int(b.mw.opt.solver))}
 
 
 def _child(args) -> None:

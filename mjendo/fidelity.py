@@ -199,7 +199,7 @@ def sweep_controls(sim: Simulator, k: int) -> None:
 
 
 def sweep(sim: Simulator, seconds: float, warmup_s: float = 1.0,
-          count_iterations: bool = False) -> tuple[float, np.ndarray | None]:
+          record_counts: bool = False) -> tuple[float, np.ndarray | None]:
     """Physics steps/s of the sweep after a warm-up into contact, and (if asked) each step's solver iterations
     and contact count (columns 0 and 1).
 
@@ -210,7 +210,7 @@ def sweep(sim: Simulator, seconds: float, warmup_s: float = 1.0,
         sweep_controls(sim, k)
         sim.step(1)
     n = int(round(seconds / dt))
-    counts = np.zeros((n, 2), int) if count_iterations else None
+    counts = np.zeros((n, 2), int) if record_counts else None
     t0 = time.perf_counter()
     for k in range(n):
         sweep_controls(sim, k)
@@ -263,7 +263,7 @@ def solver_study(caps: list[int], tolerances: list[float], fidelity: str = "full
     for solver, cap, tol in itertools.product(solvers or (preset.solver,), caps, tolerances):
         fid = replace(preset, solver=solver, iterations=cap, tolerance=tol)
         sim = simulator("DE", fid)
-        rate, counts = sweep(sim, 3.0, count_iterations=True)
+        rate, counts = sweep(sim, 3.0, record_counts=True)
         iters = counts[:, 0]
         flagged = sim.data.warning[mujoco.mjtWarning.mjWARN_INERTIA].number
         steps = int(round(sim.data.time / sim.model.opt.timestep))
@@ -294,7 +294,7 @@ def main(argv: list[str] | None = None) -> int:
                     help="refinement levels to compare with the model of record (default: all)")
     sv = sub.add_parser("solver", help="a stomach's solver, iteration cap and tolerance: speed against every figure")
     sv.add_argument("--fidelity", choices=list(FIDELITIES), default="full")
-    sv.add_argument("--solvers", nargs="+", choices=SOLVERS, default=[], help="default: the preset's")
+    sv.add_argument("--solvers", nargs="+", choices=list(SOLVERS), default=[], help="default: the preset's")
     sv.add_argument("--iterations", type=int, nargs="+", default=[1000])
     sv.add_argument("--tolerances", type=float, nargs="+", default=[1e-8, 1e-7, 1e-6])
     args = ap.parse_args(argv)

@@ -99,7 +99,16 @@ def _flexcomp(cfg: SceneConfig, st: anatomy.Stomach, msh: Path) -> str:
 </worldbody></mujoco>"""
 
 
-SOLVERS = ("CG", "Newton")
+# The constraint solvers a scene may use, by name (PGS does not run MuJoCo's discrete integrator with flex).
+SOLVERS = {"CG": mujoco.mjtSolver.mjSOL_CG, "Newton": mujoco.mjtSolver.mjSOL_NEWTON}
+
+
+def solver_id(name: str) -> mujoco.mjtSolver:
+    """MuJoCo's id of a solver named in a fidelity or a batch, or an error naming the valid ones."""
+    if name not in SOLVERS:
+        raise ConfigError(f"unknown solver {name!r}; valid: {', '.join(SOLVERS)} (PGS does not run MuJoCo's "
+                          "discrete integrator with flex)")
+    return SOLVERS[name]
 
 
 def validate(cfg: SceneConfig) -> None:
@@ -114,9 +123,7 @@ def validate(cfg: SceneConfig) -> None:
         raise ConfigError("damping and drag_per_s must be >= 0 and density > 0")
     if not 0.0 < fid.timestep_s <= 0.05:
         raise ConfigError(f"timestep must be in (0, 50 ms] (got {fid.timestep_s} s)")
-    if fid.solver not in SOLVERS:
-        raise ConfigError(f"unknown solver {fid.solver!r}; valid: {', '.join(SOLVERS)} (PGS does not run MuJoCo's "
-                          "discrete integrator with flex)")
+    solver_id(fid.solver)
 
 
 # A stomach sagging more than this under gravity has collapsed: too soft to use.

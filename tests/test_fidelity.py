@@ -27,7 +27,7 @@ def test_a_held_press_comes_to_rest(fid):
 def test_the_speed_benchmark_sweeps_the_scope_along_the_wall():
     # make bench's physics figure is only meaningful if its sweep is contact-rich.
     sim = Simulator("DE", "fast")
-    rate, counts = fidelity.sweep(sim, 1.0, count_iterations=True)
+    rate, counts = fidelity.sweep(sim, 1.0, record_counts=True)
     iters, contacts = counts.T
     assert rate > 0 and len(iters) == 100
     # Measured: the scope touches the wall in 80 % of the sweep's steps (6 contacts, median; the sweep

@@ -202,10 +202,10 @@ def choose_sets(mesh: TetMesh, entry: np.ndarray, axis: np.ndarray,
 
 
 def split_targets(points: np.ndarray, entry: np.ndarray, axis: np.ndarray,
-                  candidates) -> tuple[list[int], list[int]]:
-    """Lists A (training, 2/3) and B (held out, 1/3): ordered around the insertion axis, then A, A, B.
+                  candidates, pattern: str = "AAB") -> tuple[list[int], list[int]]:
+    """Lists A (training) and B (held out): ordered around the insertion axis, then dealt by ``pattern``.
 
-    Interleaving keeps both lists over the same regions of the wall.
+    "AAB" gives A 2/3 and B 1/3. Interleaving keeps both lists over the same regions of the wall.
     """
     cand = np.asarray(candidates, dtype=np.int64)
     u = np.cross(axis, [0.0, 1.0, 0.0])
@@ -213,8 +213,9 @@ def split_targets(points: np.ndarray, entry: np.ndarray, axis: np.ndarray,
     v = np.cross(axis, u)
     rel = points[cand] - entry
     order = cand[np.lexsort((rel @ axis, np.round(np.arctan2(rel @ v, rel @ u), 3)))]
-    return ([int(i) for n, i in enumerate(order) if n % 3 != 2],
-            [int(i) for n, i in enumerate(order) if n % 3 == 2])
+    deal = [pattern[n % len(pattern)] for n in range(len(order))]
+    return ([int(i) for i, d in zip(order, deal, strict=True) if d == "A"],
+            [int(i) for i, d in zip(order, deal, strict=True) if d == "B"])
 
 
 # --------------------------------------------------------------------------

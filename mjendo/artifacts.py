@@ -51,9 +51,30 @@ def observation_layout(force_obs: bool) -> list[dict]:
     return [{"name": n, "size": k, "unit": u} for n, k, u, _ in obs_blocks(force_obs)]
 
 
+def commit() -> str | None:
+    """The checkout's git commit (with "+dirty" when files differ from it), or None outside a checkout."""
+    import subprocess
+
+    if not paths.IN_CHECKOUT:
+        return None
+    try:
+        head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=paths.DATA, capture_output=True, text=True,
+                              check=True).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=paths.DATA,
+                               capture_output=True, text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return None
+    return head + ("+dirty" if dirty else "")
+
+
 def task_meta(cfg: TaskConfig) -> dict:
-    """The part of meta.json that says what task the policy acts in."""
-    return {"format": FORMAT, "task": asdict(cfg), "observation": observation_layout(cfg.force_obs)}
+    """The part of meta.json that says what task the policy acts in, and with which code and scenes."""
+    import mjendo
+    from mjendo.scene import fingerprint
+
+    return {"format": FORMAT, "task": asdict(cfg), "observation": observation_layout(cfg.force_obs),
+            "mjendo_version": mjendo.__version__, "scene_fingerprint": fingerprint(cfg.fidelity, cfg.version),
+            "commit": commit()}
 
 
 def write_meta(directory: Path, meta: dict) -> None:
@@ -97,8 +118,8 @@ def read_meta(directory: Path) -> dict:
 
 
 def trained_task(meta: dict) -> dict:
-    """The TaskConfig fields the policy trained with (meta["task"])."""
-    return dict(meta.get("task", {}))
+    """The TaskConfig fields the policy trained with (meta["task"]); a meta without a version is version 0."""
+    return {"version": 0, **meta.get("task", {})}
 
 
 @dataclass
@@ -160,10 +181,31 @@ def load(directory: Path) -> Policy:
     if layout is not None and sum(int(b["size"]) for b in layout) != n_obs:
         raise PolicyError(f"{directory / META_FILE} describes {sum(int(b['size']) for b in layout)} observations but "
                           f"{path} takes {n_obs}: meta.json belongs to another run; restore it from the run folder")
+    _warn_scene(directory, meta)
     norm = directory / NORM_FILE
     vn = _load_norm(norm, n_obs) if norm.exists() else None
     return Policy(directory, model, vn.obs_rms if vn else None, float(vn.clip_obs) if vn else 10.0,
                   float(vn.epsilon) if vn else 1e-8, meta)
+
+
+def _warn_scene(directory: Path, meta: dict) -> None:
+    """Warn when the policy was trained in other scene files than the installed ones (physics changed)."""
+    import warnings
+
+    from mjendo.scene import fingerprint
+
+    trained = meta.get("scene_fingerprint")
+    task = trained_task(meta)
+    if trained is None or "fidelity" not in task:
+        return
+    try:
+        now = fingerprint(task["fidelity"], int(task["version"]))
+    except (OSError, ConfigError):
+        return
+    if now != trained:
+        warnings.warn(f"policy {directory} was trained in scenes {trained}, the installed scenes are {now}: "
+                      "the physics changed since; retrain it or check out the commit in its meta.json",
+                      RuntimeWarning, stacklevel=3)
 
 
 def resolve(spec: str) -> Path:
@@ -189,23 +231,45 @@ def force_obs(directory: Path) -> bool:
     return load(directory).n_obs == obs_size(True)
 
 
-def ship(run: Path, policy: str) -> Path:
-    """Copy a finished run's final policy and logs into models/policies/<policy>/ (what users get).
+def slim_copy(src: Path, dest: Path) -> None:
+    """Copy model.zip without the optimizer's moments (two thirds of the file; a shipped policy only acts)."""
+    import zipfile
 
-    The run's own meta.json travels with it: what the run used, never
-    today's defaults. Final weights, not ``best/``: with the learning rate
-    decayed to 0 the end of the run is the converged policy (docs/training.md).
+    import torch
+
+    with zipfile.ZipFile(src) as zin, zipfile.ZipFile(dest, "w", zipfile.ZIP_DEFLATED) as zout:
+        for item in zin.infolist():
+            data = zin.read(item.filename)
+            if item.filename == "policy.optimizer.pth":
+                import io
+
+                state = torch.load(io.BytesIO(data), map_location="cpu", weights_only=False)
+                state["state"] = {}
+                buf = io.BytesIO()
+                torch.save(state, buf)
+                data = buf.getvalue()
+            zout.writestr(item, data)
+
+
+def ship(run: Path, policy: str, dest: Path | None = None) -> Path:
+    """Copy a finished run's final policy into models/policies/<policy>/ (what users get).
+
+    Model (without optimizer moments), normalisation, meta and config only: logs stay in the run.
+    The run's own meta.json travels with it: what the run used, never today's defaults. Final
+    weights, not ``best/``: with the learning rate decayed to 0 the end of the run is the converged
+    policy (docs/training.md).
     """
     run = Path(run)
     meta = read_meta(run)
     if not (run / MODEL_FILE).exists() or not meta.get("timesteps"):
         raise PolicyError(f"{run} is not a finished run (no {MODEL_FILE} or no trained steps in {META_FILE}); "
                           "finish it with the same `make train` command first")
-    dest = paths.policies_dir() / policy
+    dest = Path(dest) if dest else paths.policies_dir() / policy
     dest.mkdir(parents=True, exist_ok=True)
-    for name in (META_FILE, CONFIG_FILE, MODEL_FILE, NORM_FILE, *LOG_FILES):
+    for name in (META_FILE, CONFIG_FILE, NORM_FILE):
         if (run / name).exists():
             shutil.copy2(run / name, dest / name)
+    slim_copy(run / MODEL_FILE, dest / MODEL_FILE)
     return dest
 
 

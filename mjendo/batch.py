@@ -23,21 +23,17 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from mjendo import warp_patch
+from mjendo import mdp, warp_patch
 from mjendo.config import (
     ACTION_SIZE,
     PAPER_ACTION_LIMIT,
-    PAPER_BONUS,
-    PAPER_EXIT_X_MM,
-    PAPER_SUCCESS_MM,
     ConfigError,
     TaskConfig,
     task_config,
 )
 from mjendo.scene import solver_id
-from mjendo.sim import MAX_SPEED
+from mjendo.sim import MAX_SPEED, oesophagus_share
 from mjendo.task import NavigationTask
-from mjendo.units import MM_PER_M
 
 
 def _require():
@@ -175,6 +171,14 @@ class BatchedNavigation:
         self.cable_max = torch.as_tensor(s.cable_pull_max, device=self.device, dtype=torch.float64)
         self.ins_lo, self.ins_hi = (float(x) for x in s.insertion_range)
         self.targets = torch.as_tensor(core.targets, device=self.device)
+        self.target_tri = torch.as_tensor(core.target_tri, device=self.device)
+        self.target_bary = torch.as_tensor(core.target_bary, device=self.device, dtype=torch.float64)
+        # The oesophagus' support of the tube behind the cardia pivot (Simulator.support), per world.
+        self.support_body = torch.as_tensor(s.support_body, device=self.device)
+        self.support_length = torch.as_tensor(s.support_length, device=self.device, dtype=torch.float64)
+        self.support_weight = torch.as_tensor(s.support_weight, device=self.device, dtype=torch.float64)
+        self.support_start = torch.as_tensor(s.support_start, device=self.device, dtype=torch.float64)
+        self.xfrc = t(d.xfrc_applied) if len(s.support_body) else None
         self.axis = torch.as_tensor(core.axis, device=self.device, dtype=torch.float64)
         self.origin = torch.as_tensor(core.origin, device=self.device, dtype=torch.float64)
         self.obs_low = torch.as_tensor(core.obs_low, device=self.device)
@@ -193,8 +197,10 @@ class BatchedNavigation:
         self.prev_axial = torch.zeros(n_worlds, **f64)
         self.steps = torch.zeros(n_worlds, dtype=torch.int64, device=self.device)
         self.target = torch.zeros(n_worlds, dtype=torch.int64, device=self.device)
+        self.target_row = torch.zeros(n_worlds, dtype=torch.int64, device=self.device)  # its row in the list
         self.phase = torch.zeros(n_worlds, dtype=torch.int64, device=self.device)  # start snapshot drawn
         self.episode_return = torch.zeros(n_worlds, **f64)
+        self.peak_force = torch.zeros(n_worlds, **f64)
         self.world_seed = seed * 1_000_003 + torch.arange(n_worlds, device=self.device, dtype=torch.int64)
         self.episodes = torch.zeros(n_worlds, dtype=torch.int64, device=self.device)
         self._contact_ids = wp.array(np.arange(d.naconmax, dtype=np.int32), dtype=int, device=self.wp_device)
@@ -227,7 +233,7 @@ class BatchedNavigation:
             sim.set_controls(np.zeros(4), 0.0)
             mujoco.mj_forward(m, data)
             reading = sim.contact()
-            targets = core._fe_targets[core.targets] if core._fe_targets is not None else sim.vertices(core.targets)
+            targets = core.list_positions()
             for k, v in (("qpos", data.qpos), ("qvel", data.qvel), ("act", data.act), ("time", [data.time]),
                          ("warmstart", data.qacc_warmstart), ("tip", sim.tip_pos()), ("tip_vel", sim.tip_vel()),
                          ("cable", sim.cable_lengths()), ("contact", [float(reading.active)]),
@@ -268,12 +274,14 @@ class BatchedNavigation:
             self.act[idx] = st["act"][phase].to(self.act.dtype)
         pick = (uniform(seed, ep, 2) * len(self.targets)).long().clamp(max=len(self.targets) - 1)
         self.target[idx] = self.targets[pick]
+        self.target_row[idx] = pick
         self.phase[idx] = phase
         self.pulls[idx] = 0.0
         self.insertion[idx] = 0.0
         self.prev_axial[idx] = 0.0
         self.steps[idx] = 0
         self.episode_return[idx] = 0.0
+        self.peak_force[idx] = 0.0
         self.episodes[idx] += 1
         self.contact[idx] = st["contact"][phase, 0] > 0
         self.force[idx] = st["force"][phase]
@@ -297,6 +305,12 @@ class BatchedNavigation:
         up = self._torch.remainder(self.clock / s.half_period, 2.0) < 1.0
         self.ctrl[:, s.load_act] = self._torch.where(up, s.load_amplitude, -s.load_amplitude).to(self.ctrl.dtype)
 
+    def _write_support(self) -> None:
+        """The oesophagus holds up the tube behind the cardia pivot in every world (as Simulator.support)."""
+        s = self.core.sim
+        share = oesophagus_share(self.support_start + self.qpos[:, s.insert_qpos, None].double(), self.support_length)
+        self.xfrc[:, self.support_body, :3] = (share[..., None] * self.support_weight).to(self.xfrc.dtype)
+
     def _physics(self) -> None:
         for _ in range(self.core.substeps):
             self._physics_step()
@@ -304,6 +318,8 @@ class BatchedNavigation:
     def _physics_step(self) -> None:
         """One physics step of every world with the load at each world's time (no task logic)."""
         self._write_load()
+        if self.xfrc is not None:
+            self._write_support()
         self._mjw.step(self.mw, self.d)
         self.clock += self.dt
 
@@ -332,6 +348,10 @@ class BatchedNavigation:
     def _read_contact(self) -> None:
         """Resultant endoscope-stomach contact force per world, as mjendo.sim.Simulator.contact computes it."""
         torch, s = self._torch, self.core.sim
+        if not s.has_stomach:  # FE: the scope touches only the hiatus ring, which is not the wall
+            self.force.zero_()
+            self.contact.zero_()
+            return
         self._contact_out.zero_()
         self._mjw.contact_force(self.mw, self.d, self._contact_ids, False, self._contact_out)
         local = self._t(self._contact_out)[:, :3].double()
@@ -362,11 +382,13 @@ class BatchedNavigation:
         return cvel[:, 3:] + torch.cross(cvel[:, :3], self.tip_pos() - com, dim=1)
 
     def target_pos(self):
+        tri, bary = self.target_tri[self.target_row], self.target_bary[self.target_row]
         if self._fe_targets is not None:
-            return self._fe_targets[self.target]
-        verts = self._t(self.d.flexvert_xpos).double()
-        adr = self.core.sim._vert_adr
-        return verts[self._torch.arange(self.n, device=self.device), adr + self.target]
+            corners = self._fe_targets[tri]
+        else:
+            verts = self._t(self.d.flexvert_xpos).double()
+            corners = verts[self._torch.arange(self.n, device=self.device)[:, None], self.core.sim._vert_adr + tri]
+        return (bary[..., None] * corners).sum(1)
 
     def observation(self, delta=None):
         """Every world's observation after its last step (``delta`` = target - tip if already known, m)."""
@@ -376,13 +398,9 @@ class BatchedNavigation:
         return self._observe(delta, self.tip_vel(), cable, self.prev_axial, self.contact, self.force)
 
     def _observe(self, delta, tip_vel, cable, prev_axial, contact, force):
-        """The CPU task's observation vector, row by row, from its parts (SI units in, millimetres out)."""
-        torch = self._torch
-        blocks = [delta * MM_PER_M, tip_vel * MM_PER_M, cable * MM_PER_M, prev_axial[:, None]]
-        if self.cfg.force_obs:
-            blocks += [contact[:, None].double(), force / self.cfg.force_ref_n]
-        obs = torch.cat(blocks, dim=1).float()
-        return torch.maximum(torch.minimum(obs, self.obs_high), self.obs_low)
+        """The task's observation rows (mjendo.mdp.observe) from their parts (SI units in, millimetres out)."""
+        return mdp.observe(self._torch, self.cfg, delta, tip_vel, cable, prev_axial, contact.double(), force,
+                           self.obs_low, self.obs_high)
 
     def step(self, action) -> BatchStep:
         """Apply (N, 5) actions, advance every world one control step, reset the worlds that ended.
@@ -406,22 +424,17 @@ class BatchedNavigation:
         qvel = self.qvel.double()
         unstable = ~torch.isfinite(qvel).all(dim=1) | (qvel.abs().max(dim=1).values >= MAX_SPEED)
         self._read_contact()
-        tip, target = self.tip_pos(), self.target_pos()
-        delta = target - tip
-        dist = torch.linalg.norm(delta, dim=1) * MM_PER_M
-        ok = ~unstable
-        success = (dist < PAPER_SUCCESS_MM) & ok
-        exited = (((tip - self.origin) @ self.axis) * MM_PER_M < PAPER_EXIT_X_MM) & ok
-        force_n = torch.linalg.norm(self.force, dim=1)
-        reward = -dist + PAPER_BONUS * success.double() - PAPER_BONUS * exited.double() - c.force_penalty * force_n
-        reward = torch.where(ok, reward, torch.zeros_like(reward))
-        terminated = success | exited
-        truncated = ((self.steps >= c.max_steps) | unstable) & ~terminated
+        out = mdp.outcome(c, self.tip_pos(), self.target_pos(), self.origin, self.axis, self.force, self.steps,
+                          ~unstable)
+        self.peak_force = torch.maximum(self.peak_force, out["force_n"])
+        reward, terminated, truncated, delta = out["reward"], out["terminated"], out["truncated"], out["delta"]
         obs = self.observation(delta)
         self.episode_return += reward
         done = terminated | truncated
-        info = {"distance_mm": dist, "is_success": success, "exited": exited, "contact": self.contact.clone(),
-                "force_N": self.force.clone(), "target_index": self.target.clone(), "unstable": unstable,
+        info = {"distance_mm": out["distance_mm"], "is_success": out["is_success"], "exited": out["exited"],
+                "contact": self.contact.clone(), "force_N": self.force.clone(), "peak_force_N": self.peak_force.clone(),
+                "target_index": self.target.clone(), "step": self.steps.clone(), "unstable": unstable,
+                **{k: out[k] for k in mdp.REWARD_TERMS},
                 "episode_return": self.episode_return.clone(), "episode_length": self.steps.clone(),
                 "final_obs": obs.clone()}
         if done.any():

@@ -78,6 +78,11 @@ class Material:
     # motion depended on the timestep (-29 % at 10 ms vs 2.5 ms). 15 = 2 w1 -
     # damping * w1^2: that mode critically damped (docs/physics.md "Damping").
     drag_per_s: float = 15.0
+    # 1/s^2; mass-proportional elastic foundation: the organs around the stomach (liver, spleen, colon,
+    # omentum) hold its wall near its place, a zero-length spring per flex dof of stiffness
+    # foundation * mass. 0 (task version 0): only the 3 fixed vertices hold it, and a scope pushing with
+    # its 10 N insertion force swung the whole fast stomach by 150-240 mm. See TaskVersion.
+    foundation_per_s2: float = 0.0
     density_kg_m3: float = 1040.0  # soft tissue
 
 
@@ -130,6 +135,15 @@ class Endoscope:
     insertion_range_mm: tuple[float, float] = (-30.0, 160.0)
     # Where the tip starts at insertion 0: this far past the cardia opening.
     start_depth_mm: float = 20.0
+    # The oesophageal hiatus holds the insertion tube at the cardia like a compliant pivot: the tube
+    # tilts about the cardia instead of running on a rigid straight slide. A torsional spring per bending
+    # plane (N m / rad) with a range; None keeps the rigid slide (task version 0). No measured value of the
+    # hiatus' angular stiffness is published; 0.02 N m/rad lets the fully inserted tube's own weight
+    # (0.1 kg/m x 0.18 m) tilt it by about 40 degrees across gravity (docs/physics.md "Scope").
+    pivot_stiffness_Nm_per_rad: float | None = None
+    pivot_damping: float = 0.01  # N m s / rad: the oesophagus around the tube; settles the tilt within 0.2 s
+    pivot_range_deg: float = 60.0  # the hiatus cannot open further (mechanical stop, not a spring)
+    hiatus_clearance_mm: float = 0.5  # radial play of the tube in the ring that models the hiatus
 
 
 @dataclass(frozen=True)
@@ -246,6 +260,10 @@ class SceneConfig:
     endoscope: Endoscope = field(default_factory=Endoscope)
     load: PeriodicLoad = field(default_factory=PeriodicLoad)
     gravity: float = GRAVITY
+    # Unit direction of gravity in the stomach's frame (z cranial, -x the patient's left, where the greater
+    # curvature lies). (0, 0, -1): upright (task version 0). Upper GI endoscopy is done with the patient in
+    # the left lateral decubitus position, so gravity points to the patient's left, -x (docs/physics.md).
+    gravity_direction: tuple[float, float, float] = (0.0, 0.0, -1.0)
 
     def young_pa(self) -> float:
         """Young's modulus used by this scene's flex (fidelity-calibrated)."""
@@ -258,7 +276,7 @@ class ConfigError(ValueError):
 
 def _pick(table: dict, key: str, what: str):
     if key not in table:
-        raise ConfigError(f"unknown {what} {key!r}; valid: {', '.join(table)}")
+        raise ConfigError(f"unknown {what} {key!r}; valid: {', '.join(map(str, table))}")
     return table[key]
 
 
@@ -267,13 +285,24 @@ def condition(env: str) -> Condition:
     return _pick(CONDITIONS, env, "environment")
 
 
-def fidelity_preset(fidelity: str | Fidelity) -> Fidelity:
-    return fidelity if isinstance(fidelity, Fidelity) else _pick(FIDELITIES, fidelity, "fidelity")
+def fidelity_preset(fidelity: str | Fidelity, version: int | None = None) -> Fidelity:
+    """A fidelity by name (the fast stomach's timestep is the task version's) or as given."""
+    if isinstance(fidelity, Fidelity):
+        return fidelity
+    fid = _pick(FIDELITIES, fidelity, "fidelity")
+    if fid.name == "fast":
+        ver = task_version(CURRENT_VERSION if version is None else version)
+        fid = replace(fid, timestep_s=ver.fast_timestep_s, load_gains=ver.fast_load_gains)
+    return fid
 
 
-def scene_config(env: str = "DE", fidelity: str | Fidelity = "fast", **overrides) -> SceneConfig:
+def scene_config(env: str = "DE", fidelity: str | Fidelity = "fast", version: int | None = None,
+                 **overrides) -> SceneConfig:
     """The scene an environment runs in at a fidelity preset (name, or a Fidelity to try one)."""
-    cfg = SceneConfig(has_stomach=condition(env).has_stomach, fidelity=fidelity_preset(fidelity))
+    ver = task_version(CURRENT_VERSION if version is None else version)
+    cfg = SceneConfig(has_stomach=condition(env).has_stomach, fidelity=fidelity_preset(fidelity, version),
+                      endoscope=ver.endoscope, gravity_direction=ver.gravity_direction,
+                      material=Material(foundation_per_s2=ver.foundation_per_s2))
     return replace(cfg, **overrides) if overrides else cfg
 
 
@@ -288,28 +317,90 @@ PAPER_TRAIN_STEPS = 128  # paper: training episode length
 PAPER_EVAL_STEPS = 80  # paper: evaluation trial length
 
 
+# --------------------------------------------------------------------------
+# Time scales of the task (task version 1), from the literature; none was tuned for success.
+# Breathing: 12-20 breaths/min in resting adults (clinical normal range); PeriodicLoad's 4 s cycle is 15/min.
+# Gastric motility: the gastric slow wave and antral contractions run at about 3 per minute (20 s period).
+# Heartbeat: 60-100 /min. The square-wave load is the breathing component (the largest excursion).
+# Flexible robotic endoscopes move their tips at millimetres to a few centimetres per second: insertion
+# of manual and robotic gastroscopes runs at about 1-3 cm/s and bending sections sweep tens of degrees
+# per second. Version 1 caps insertion at 25 mm/s and the cable stroke at 4 mm/s (full bending in
+# about 2.3 s, 65 degrees/s), and controls at 10 Hz: an 80-step trial lasts 8 s, two breathing cycles.
+CONTROL_PERIOD_S = 0.1
+INSERTION_MM_PER_S = 25.0
+CABLE_MM_PER_S = 4.0
+# A safety-limited feeder: the insertion servo pushes with 3 N at most. With the 10 N of version 0 a scope
+# buckled against the greater curvature pushed the whole stomach 100-240 mm away (measured).
+INSERTION_MAX_FORCE_N = 3.0
+# The organs around the stomach hold it (Material.foundation_per_s2): 2000 /s^2 on its 0.23 kg is about
+# 460 N/m in all, so the 3 N feeder can displace the whole organ by about 7 mm, the 1 N breathing load
+# by about 2 mm, on top of the wall's local deformation. With none, 3 anchor vertices held the stomach.
+FOUNDATION_PER_S2 = 2000.0
+
+
+@dataclass(frozen=True)
+class TaskVersion:
+    """What changed between task versions: scope, patient position, time scales, fast timestep, targets.
+
+    Version 0 is the first release's task (rigid straight slide, upright gravity, 30 ms control
+    period, 133 mm/s insertion, vertex targets); it stays selectable so its tables can be reproduced.
+    """
+
+    endoscope: Endoscope
+    gravity_direction: tuple[float, float, float]
+    foundation_per_s2: float
+    fast_timestep_s: float
+    fast_load_gains: tuple[float, float, float]  # Fidelity.load_gains of the fast stomach
+    control_period_s: float
+    cable_mm_per_unit: float
+    insertion_mm_per_unit: float
+
+
+VERSIONS: dict[int, TaskVersion] = {
+    0: TaskVersion(Endoscope(), (0.0, 0.0, -1.0), 0.0, 0.01, (4.1, 5.7, 6.3), 0.03, 2.5, 10.0),
+    # 25 ms: 4 physics steps per 100 ms control step; at the slower tip the wall's contact still
+    # resolves 0.6 mm per step, and gravity sag, press forces and load motion match 10 ms (docs/physics.md).
+    # 20 ms: 5 physics steps per 100 ms control step. At 25 ms a buckled tube pressed into the J's bottom
+    # set off a numerical event (tip 2.6 m/s, wall swept 120 mm in 0.1 s); 20 ms and 10 ms do not
+    # (docs/physics.md "Timestep").
+    1: TaskVersion(Endoscope(pivot_stiffness_Nm_per_rad=0.03, insertion_max_force_n=INSERTION_MAX_FORCE_N),
+                   # load gains: median target motion over a load cycle as in the full stomach (docs/physics.md)
+                   (-1.0, 0.0, 0.0), FOUNDATION_PER_S2, 0.02, (2.85, 2.93, 3.02), CONTROL_PERIOD_S,
+                   CABLE_MM_PER_S * CONTROL_PERIOD_S / PAPER_ACTION_LIMIT,
+                   INSERTION_MM_PER_S * CONTROL_PERIOD_S / PAPER_ACTION_LIMIT),
+}
+CURRENT_VERSION = 1
+
+
+def task_version(version: int) -> TaskVersion:
+    return _pick(VERSIONS, version, "task version")
+
+
 @dataclass(frozen=True)
 class TaskConfig:
-    """One navigation task: which scene, what the agent sees, how actions scale."""
+    """One navigation task: which scene, what the agent sees, how actions scale.
+
+    The action scales and the control period default to the task version's (None): see TaskVersion.
+    """
 
     env: str = "DE"
     fidelity: str = "fast"
     force_obs: bool = True  # contact indicator + resultant force (policies C, E)
     target_list: str | None = None  # None: the environment's own list (A or B)
     max_steps: int = PAPER_TRAIN_STEPS
-    # Control period (paper: not given): 30 ms, 33 Hz; 128 steps = 3.84 s,
-    # about one 4 s breathing cycle. Must be a multiple of the timestep.
-    control_period_s: float = 0.03
-    # Action unit -> physical increment per control step (paper: not given).
-    # 0.4 (the limit) moves a cable 1 mm (full bending in ~14 steps) and the
-    # insertion 4 mm per step (133 mm/s): the farthest target of list A
-    # (136 mm along the axis) in 34 of the 80 steps of a trial. At 2 mm/step
-    # it took 68, leaving a moving target no margin (E's far-target failures).
-    cable_mm_per_unit: float = 2.5
-    insertion_mm_per_unit: float = 10.0
+    version: int = CURRENT_VERSION  # task version (VERSIONS): scope, gravity, time scales, targets
+    # Control period (paper: not given) and action unit -> physical increment per control step.
+    control_period_s: float | None = None
+    cable_mm_per_unit: float | None = None
+    insertion_mm_per_unit: float | None = None
     force_ref_n: float = 1.0  # the observation's force is force / force_ref
     force_penalty: float = 0.0  # optional safety term: -force_penalty * |F| (N) per step
     randomize_phase: bool = True  # start each episode at a random phase of the load
+
+
+def default_target_list(env: str, version: int) -> str:
+    """An environment's own list: FE aims at free-space targets (list F) from version 1, at A before."""
+    return "F" if env == "FE" and version >= 1 else condition(env).target_list
 
 
 def _finite(name: str, value, low: float, *, strict: bool) -> None:
@@ -328,11 +419,17 @@ def task_config(**kw) -> TaskConfig:
     cfg = TaskConfig(**kw)
     condition(cfg.env)
     fidelity_preset(cfg.fidelity)
+    if isinstance(cfg.version, bool) or not isinstance(cfg.version, int | np.integer):
+        raise ConfigError(f"version must be a whole number, one of {sorted(VERSIONS)}, not {cfg.version!r}")
+    ver = task_version(int(cfg.version))
+    cfg = replace(cfg, version=int(cfg.version), **{k: getattr(ver, k) for k in ACTION_SCALES
+                                                    if getattr(cfg, k) is None})
     for name in ("force_obs", "randomize_phase"):
         if not isinstance(getattr(cfg, name), bool | np.bool_):
             raise ConfigError(f"{name} must be True or False, not {getattr(cfg, name)!r}")
-    if cfg.target_list not in (None, "A", "B"):
-        raise ConfigError(f"unknown target_list {cfg.target_list!r}; valid: 'A', 'B' or None")
+    if cfg.target_list not in (None, "A", "B", "F"):
+        raise ConfigError(f"unknown target_list {cfg.target_list!r}; valid: 'A', 'B', 'F' (FE's free-space "
+                          "targets) or None")
     if isinstance(cfg.max_steps, bool) or not isinstance(cfg.max_steps, int | np.integer) or cfg.max_steps < 1:
         raise ConfigError(f"max_steps must be a whole number >= 1, not {cfg.max_steps!r}")
     for name in ("control_period_s", "cable_mm_per_unit", "insertion_mm_per_unit", "force_ref_n"):
@@ -344,9 +441,12 @@ def task_config(**kw) -> TaskConfig:
     return cfg
 
 
+ACTION_SCALES = ("control_period_s", "cable_mm_per_unit", "insertion_mm_per_unit")
+
+
 def substeps(cfg: TaskConfig) -> int:
     """Physics steps per control step; the period must be a whole number of them."""
-    dt = FIDELITIES[cfg.fidelity].timestep_s
+    dt = fidelity_preset(cfg.fidelity, cfg.version).timestep_s
     n = round(cfg.control_period_s / dt)
     if n < 1 or abs(n * dt - cfg.control_period_s) > 1e-9:
         raise ConfigError(f"control_period_s {cfg.control_period_s} is not a multiple of the {cfg.fidelity} "

@@ -24,6 +24,10 @@ TIP_BODY = "tip"
 TIP_LIGHT = "tip_light"
 TIP_CAMERA = "tip_camera"
 LINK_PREFIX = "link"
+CARRIAGE = "carriage"
+PIVOT = "cardia_pivot"
+HIATUS_BAR_RADIUS = 0.002  # m
+HIATUS_CONTYPE = 4  # with conaffinity 1: touches the scope (contype 1), not the stomach (contype 2, conaffinity 1)
 
 
 def quat_z_to(direction: np.ndarray) -> np.ndarray:
@@ -56,11 +60,30 @@ def add_endoscope(spec: mujoco.MjSpec, cfg: Endoscope, entry: np.ndarray, axis: 
     radius = from_mm(cfg.diameter_mm) / 2
     la, lp = from_mm(cfg.active_length_mm), from_mm(cfg.passive_length_mm)
     l_act, l_pas = la / cfg.n_active_links, lp / cfg.n_passive_links
-    base = entry + (from_mm(cfg.start_depth_mm) - la - lp) * axis
+    behind = (from_mm(cfg.start_depth_mm) - la - lp) * np.array([0.0, 0.0, 1.0])  # carriage in the pivot frame
     # Geom density that gives the tube its linear density.
     density = cfg.linear_density_kg_m / (np.pi * radius**2)
 
-    carriage = spec.worldbody.add_body(name="carriage", pos=base, quat=quat_z_to(axis))
+    if cfg.pivot_stiffness_Nm_per_rad is None:  # rigid straight slide
+        carriage = spec.worldbody.add_body(name=CARRIAGE, pos=entry + behind[2] * axis, quat=quat_z_to(axis))
+    else:  # the slide hangs in a compliant pivot at the cardia
+        pivot = spec.worldbody.add_body(name=PIVOT, pos=entry, quat=quat_z_to(axis))
+        lim = np.radians(cfg.pivot_range_deg)
+        for ax, tag in (([1, 0, 0], "x"), ([0, 1, 0], "y")):
+            pivot.add_joint(name=f"{PIVOT}_{tag}", type=mujoco.mjtJoint.mjJNT_HINGE, axis=ax,
+                            stiffness=cfg.pivot_stiffness_Nm_per_rad, damping=cfg.pivot_damping,
+                            armature=cfg.joint_armature, range=[-lim, lim], limited=mujoco.mjtLimited.mjLIMITED_TRUE)
+        # The hiatus: a ring of short capsules around the tube, on the pivot, through which the tube slides.
+        ring_r, bar_r, n_bars = radius + from_mm(cfg.hiatus_clearance_mm) + HIATUS_BAR_RADIUS, HIATUS_BAR_RADIUS, 8
+        half = ring_r * np.tan(np.pi / n_bars)
+        for k in range(n_bars):
+            a = 2 * np.pi * k / n_bars
+            c, t = ring_r * np.array([np.cos(a), np.sin(a), 0.0]), np.array([-np.sin(a), np.cos(a), 0.0])
+            pivot.add_geom(name=f"hiatus{k}", type=mujoco.mjtGeom.mjGEOM_CAPSULE,
+                           fromto=[*(c - half * t), *(c + half * t)], size=[bar_r, 0, 0], mass=0.01 / n_bars,
+                           contype=HIATUS_CONTYPE, conaffinity=1, condim=3,
+                           friction=[friction, 0.005, 0.0001], group=3, rgba=[0.8, 0.5, 0.5, 1])
+        carriage = pivot.add_body(name=CARRIAGE, pos=behind)
     carriage.add_joint(name=INSERTION, type=mujoco.mjtJoint.mjJNT_SLIDE, axis=[0, 0, 1],
                        range=from_mm(cfg.insertion_range_mm), limited=mujoco.mjtLimited.mjLIMITED_TRUE,
                        damping=cfg.insertion_damping, armature=0.05)

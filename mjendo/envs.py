@@ -29,13 +29,14 @@ class EndoscopeEnv(gym.Env):
 
     ## Action space
 
-    ``Box(-0.4, 0.4, (5,), float32)``, applied every control period of 30 ms
-    (3 physics steps of 10 ms). Out-of-range values are clipped; NaN raises.
+    ``Box(-0.4, 0.4, (5,), float32)``, applied every control period of 100 ms (v1; 4 physics
+    steps of 25 ms in the fast stomach, 10 of 10 ms in the full one). Out-of-range values are
+    clipped; NaN raises.
 
-    | index | meaning | unit and scale |
+    | index | meaning | unit and scale (v1) |
     |---|---|---|
-    | 0-3 | cables +x, -x, +y, -y of the active segment | change of cable pull, 1 unit = 2.5 mm (0.4: 1 mm per step); positive pulls, negative pays out |
-    | 4 | insertion through the cardia | change of insertion depth, 1 unit = 10 mm (0.4: 4 mm per step) |
+    | 0-3 | cables +x, -x, +y, -y of the active segment | change of cable pull, 1 unit = 1 mm (0.4: 0.4 mm per step, 4 mm/s); positive pulls, negative pays out |
+    | 4 | insertion through the cardia | change of insertion depth, 1 unit = 6.25 mm (0.4: 2.5 mm per step, 25 mm/s) |
 
     ## Observation space
 
@@ -71,7 +72,8 @@ class EndoscopeEnv(gym.Env):
     | ``env`` | set by the id | FE, SE, DE, UE1, UE2 |
     | ``force_obs`` | True | include contact indicator and force (policies C, E) |
     | ``fidelity`` | "fast" | "fast" (reduced-order stomach) or "full" (per-vertex FEM) |
-    | ``target_list`` | the env's | "A" (training) or "B" (held out) |
+    | ``target_list`` | the env's | "A" (training), "B" (held out) or "F" (free-space targets: FE's own) |
+    | ``version`` | set by the id | task version (below) |
     | ``max_steps`` | 128 | truncation limit |
     | ``force_penalty`` | 0.0 | weight of the optional force penalty per newton |
     | ``randomize_phase`` | True | start each episode at a random phase of the periodic load (False: phase 0) |
@@ -82,6 +84,17 @@ class EndoscopeEnv(gym.Env):
 
     ``info`` each step: distance_mm, is_success, contact, force_N (3-vector),
     peak_force_N, target_index, exited, step and the reward terms.
+
+    ## Version history
+
+    * v1: the contact-aided problem. The insertion tube hangs in a compliant pivot at the cardia
+      (the hiatus) instead of a rigid straight slide; the patient lies in the left lateral decubitus
+      position (gravity towards the greater curvature); control at 10 Hz with insertion up to
+      25 mm/s and cable stroke up to 4 mm/s, so an 80-step trial lasts 8 s (two breathing cycles);
+      fast stomach at 25 ms; targets are points on lumen triangles from the reachability map
+      (``python -m mjendo.targets map``): lists A and B mostly contact-aided, FE has its own list F.
+    * v0: first release: rigid slide, upright gravity, 30 ms control period, 133 mm/s insertion,
+      lumen-vertex targets within 20 mm of the free-space workspace.
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 40}

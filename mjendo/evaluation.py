@@ -94,15 +94,34 @@ class Trial:
     mean_force_n: float
     peak_force_n: float
     first_contact_step: float
+    contact_share: float = math.nan  # share of steps in contact with the wall
+    force_at_end_n: float = math.nan  # contact force at the last step (at success, for successful trials)
+    over_1n_share: float = math.nan  # share of steps with a contact force above 1 N (CathSim's safety measure)
+    over_2n_share: float = math.nan  # ... above 2 N
+    target_motion_mm: float = math.nan  # farthest the target moved from where it was at the trial's start
+    duration_s: float = math.nan  # simulated time of the trial
     error: str = ""
 
 
+def trial_targets(env, n: int) -> list[int]:
+    """Trials by design: trial i aims at target i mod len(list), each target as often (load phase by the seed)."""
+    listed = env.task.targets.tolist()
+    return [listed[i % len(listed)] for i in range(n)]
+
+
 def trial_records(env, ctrl, name: str, seeds: list[int], keep_paths: bool = False) -> tuple[list, list]:
-    """Seeded trials of a controller in an env (its max_steps is the trial length); per-trial records and paths."""
+    """Seeded trials of a controller in an env (its max_steps is the trial length); per-trial records and paths.
+
+    Trial i aims at target i mod len(list) and starts at the load phase its seed draws.
+    """
     trials, paths = [], []
-    for i, seed in enumerate(seeds):
+    for i, (seed, target) in enumerate(zip(seeds, trial_targets(env, len(seeds)), strict=True)):
         forces, tips, dists, contact_step, contact_pos = [], [], [], math.nan, None
-        for s in rollout.episode(env, ctrl, seed=seed):
+        start, motion = None, 0.0
+        for s in rollout.episode(env, ctrl, seed=seed, target=target):
+            here = env.task.target_pos()
+            start = here if start is None else start
+            motion = max(motion, float(np.linalg.norm(here - start)))
             if s.index == 0:
                 continue
             info = s.info
@@ -114,9 +133,12 @@ def trial_records(env, ctrl, name: str, seeds: list[int], keep_paths: bool = Fal
             if info["contact"] and math.isnan(contact_step):
                 contact_step, contact_pos = s.index, tip
         ok, k = bool(info["is_success"]), s.index
+        f = np.array(forces)
         trials.append(Trial(name, env.task.cfg.env, i, seed, info["target_index"], ok, info["distance_mm"], k,
-                            float(k) if ok else math.nan, bool(info["exited"]), float(np.mean(forces)),
-                            float(np.max(forces)), contact_step))
+                            float(k) if ok else math.nan, bool(info["exited"]), float(np.mean(f)),
+                            float(np.max(f)), contact_step, float(np.mean(f > 0)), float(f[-1]),
+                            float(np.mean(f > 1.0)), float(np.mean(f > 2.0)), float(to_mm(motion)),
+                            k * env.task.control_dt))
         if keep_paths:
             paths.append({"target": info["target_index"], "tip_mm": np.array(tips), "force_n": np.array(forces),
                           "distance_mm": np.array(dists), "contact_mm": contact_pos, "success": ok})
@@ -136,7 +158,7 @@ def run_trials(controller: str, env_name: str, seeds: list[int], keep_paths: boo
     except Exception as exc:  # reported per cell, the other cells still run
         msg = f"{type(exc).__name__}: {exc}".replace("\n", " ")
         nan = float("nan")
-        return [Trial(controller, env_name, i, s, -1, False, nan, 0, nan, False, nan, nan, nan, msg)
+        return [Trial(controller, env_name, i, s, -1, False, nan, 0, nan, False, nan, nan, nan, error=msg)
                 for i, s in enumerate(seeds)], []
     return trial_records(env, ctrl, controller, seeds, keep_paths)
 
@@ -175,6 +197,10 @@ def summarize(trials: list[Trial]) -> list[dict]:
             xs = [x for x in xs if not math.isnan(x)]
             return float(np.mean(xs)) if xs else math.nan
 
+        def median(xs):
+            xs = [x for x in xs if not math.isnan(x)]
+            return float(np.median(xs)) if xs else math.nan
+
         paper = PAPER_RESULTS.get(key[0], {}).get(key[1], (math.nan, math.nan))
         rows.append({
             "controller": key[0], "env": key[1], "trials": n,
@@ -183,6 +209,11 @@ def summarize(trials: list[Trial]) -> list[dict]:
             "mean_force_n": mean([t.mean_force_n for t in ts]), "peak_force_n": mean([t.peak_force_n for t in ts]),
             "max_peak_force_n": max((t.peak_force_n for t in ts), default=math.nan),
             "steps_to_success": mean([t.steps_to_success for t in ok]),
+            "contact_share": mean([t.contact_share for t in ts]),
+            "force_at_success_n": mean([t.force_at_end_n for t in ok]),
+            "over_1n_share": mean([t.over_1n_share for t in ts]), "over_2n_share": mean([t.over_2n_share for t in ts]),
+            "median_target_motion_mm": median([t.target_motion_mm for t in ts]),
+            "median_duration_s": median([t.duration_s for t in ts]),
             "exits": sum(t.exited for t in ts),
             "paper_sr": paper[0], "paper_ae": paper[1], "error": err,
         })

@@ -47,6 +47,10 @@ class PPOController:
             raise PolicyError(f"policy {self.name} expects {self.n_obs} observations but the task gives "
                               f"{obs_size(task.cfg.force_obs)}: use force_obs={self.n_obs == obs_size(True)}")
         trained = artifacts.trained_task(self.meta)
+        if int(trained["version"]) != task.cfg.version:
+            raise PolicyError(f"policy {self.name} was trained in task version {trained['version']}, the task is "
+                              f"version {task.cfg.version}: build the task with version={trained['version']} "
+                              "(ids mjendo/<env>-v" f"{trained['version']}) or use a policy of this version")
         diff = [f"{k} {trained[k]} (task: {getattr(task.cfg, k)})" for k in ACTION_SCALE_FIELDS
                 if k in trained and float(trained[k]) != float(getattr(task.cfg, k))]
         if diff:

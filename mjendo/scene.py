@@ -19,8 +19,10 @@ import numpy as np
 
 from mjendo import anatomy, endoscope, paths
 from mjendo.config import (
+    CURRENT_VERSION,
     FIDELITIES,
     PAPER_SUCCESS_MM,
+    VERSIONS,
     ConfigError,
     Fidelity,
     SceneConfig,
@@ -41,25 +43,30 @@ def scene_name(cfg: SceneConfig) -> str:
     return f"stomach_{cfg.fidelity.name}" if cfg.has_stomach else "FE"
 
 
-def scene_path(env: str, fidelity: str = "fast") -> Path:
-    """Committed scene file an environment runs in (FE has no stomach: one file for every fidelity)."""
-    return SCENES_DIR / f"{scene_name(scene_config(env, fidelity))}.xml"
+def scene_path(env: str, fidelity: str = "fast", version: int = CURRENT_VERSION) -> Path:
+    """Committed scene file an environment runs in (FE has no stomach: one file for every fidelity).
+
+    The current task version's scenes lie in models/scenes/, older versions' in models/scenes/v<N>/.
+    """
+    folder = SCENES_DIR if version == CURRENT_VERSION else SCENES_DIR / f"v{version}"
+    return folder / f"{scene_name(scene_config(env, fidelity, version))}.xml"
 
 
-def fingerprint(fidelity: str = "fast") -> str:
+def fingerprint(fidelity: str = "fast", version: int = CURRENT_VERSION) -> str:
     """Short hash of the scene files a fidelity's environments run in: results cached on disk name their model."""
     h = hashlib.sha256()
     for env in ("FE", "DE"):
-        h.update(scene_path(env, fidelity).read_bytes())
+        h.update(scene_path(env, fidelity, version).read_bytes())
     return h.hexdigest()[:12]
 
 
 def _header(cfg: SceneConfig) -> str:
     fid = cfg.fidelity
+    g = cfg.gravity * np.asarray(cfg.gravity_direction, float) / np.linalg.norm(cfg.gravity_direction)
     return f"""<mujoco model="mjendo {scene_name(cfg)}">
   <compiler angle="radian" autolimits="true"/>
   <option timestep="{fid.timestep_s}" integrator="discrete" solver="{fid.solver}" iterations="{fid.iterations}"
-          tolerance="{fid.tolerance:g}" gravity="0 0 {-cfg.gravity}" cone="pyramidal"/>
+          tolerance="{fid.tolerance:g}" gravity="{' '.join(f'{x:.6g}' for x in g + 0.0)}" cone="pyramidal"/>
   <size memory="64M"/>
   <visual>
     <global offwidth="1280" offheight="960" azimuth="90" elevation="-10"/>
@@ -234,10 +241,16 @@ def _add_anchors_and_load(spec: mujoco.MjSpec, model: mujoco.MjModel,
     names = [spec.joints[j].name for j in dofs]
     # Rayleigh alpha, damping proportional to each flex dof's mass, as the damping of a passive
     # actuator per dof (no gain, so ctrl does nothing): MuJoCo refuses joint damping on flex bodies.
-    for j, name in zip(dofs, names, strict=True) if cfg.material.drag_per_s > 0 else ():
+    # The elastic foundation (Material.foundation_per_s2) is the same actuator's spring to the rest position.
+    mat = cfg.material
+    for j, name in zip(dofs, names, strict=True) if mat.drag_per_s > 0 or mat.foundation_per_s2 > 0 else ():
         a = spec.add_actuator(name=f"drag_{name}", target=name, trntype=mujoco.mjtTrn.mjTRN_JOINT)
         a.gainprm[0] = 0.0
-        a.damping = [cfg.material.drag_per_s * model.body_mass[model.jnt_bodyid[j]], 0, 0]
+        mass = model.body_mass[model.jnt_bodyid[j]]
+        a.damping = [mat.drag_per_s * mass, 0, 0]
+        if mat.foundation_per_s2 > 0:
+            a.biastype = mujoco.mjtBias.mjBIAS_AFFINE
+            a.biasprm[1] = -mat.foundation_per_s2 * mass
     anchored = [] if cfg.fidelity.dof == "full" else st.fixed  # full: pinned in the flexcomp
     jac = _vertex_jacobian(model, flex_id, anchored + st.forced, model.jnt_qposadr[dofs])
     for k, v in enumerate(anchored):
@@ -261,9 +274,10 @@ def _add_anchors_and_load(spec: mujoco.MjSpec, model: mujoco.MjModel,
     a.ctrllimited = mujoco.mjtLimited.mjLIMITED_TRUE
 
 
-def scene_xml(env: str, fidelity: str | Fidelity = "fast", check: bool = True, **overrides) -> str:
-    """The scene file's text for an environment and fidelity, probed for usable physics."""
-    cfg = scene_config(env, fidelity, **overrides)
+def scene_xml(env: str, fidelity: str | Fidelity = "fast", check: bool = True, version: int = CURRENT_VERSION,
+              **overrides) -> str:
+    """The scene file's text for an environment, fidelity and task version, probed for usable physics."""
+    cfg = scene_config(env, fidelity, version, **overrides)
     spec = build_spec(cfg)
     if check:
         probe(spec.compile())
@@ -271,12 +285,14 @@ def scene_xml(env: str, fidelity: str | Fidelity = "fast", check: bool = True, *
 
 
 def write_all(directory: Path = SCENES_DIR) -> list[Path]:
-    directory.mkdir(parents=True, exist_ok=True)
+    """Every committed scene: each task version's FE and stomach scenes at each fidelity."""
     written = []
-    for env, fid in [("FE", "fast")] + [("SE", f) for f in FIDELITIES]:
-        path = directory / scene_path(env, fid).name
-        path.write_text(scene_xml(env, fid))
-        written.append(path)
+    for version in VERSIONS:
+        for env, fid in [("FE", "fast")] + [("SE", f) for f in FIDELITIES]:
+            path = directory / scene_path(env, fid, version).relative_to(SCENES_DIR)
+            path.parent.mkdir(parents=True, exist_ok=True)
+            path.write_text(scene_xml(env, fid, version=version))
+            written.append(path)
     return written
 
 

@@ -16,7 +16,7 @@ import mujoco
 import numpy as np
 
 from mjendo import endoscope, scene
-from mjendo.config import PeriodicLoad, condition, load_gain
+from mjendo.config import CURRENT_VERSION, PeriodicLoad, condition, load_gain
 
 
 class InstabilityError(RuntimeError):
@@ -33,6 +33,20 @@ def square_wave(t: float, f0: float, half_period: float) -> float:
     if f0 == 0.0:
         return 0.0
     return f0 if (t / half_period) % 2.0 < 1.0 else -f0
+
+
+def link_length(m: mujoco.MjModel, body: int) -> float:
+    """Length of a scope body along its axis: its capsule's extent (0 for the carriage's point mass)."""
+    geoms = [g for g in range(m.ngeom) if m.geom_bodyid[g] == body and m.geom_type[g] == mujoco.mjtGeom.mjGEOM_CAPSULE]
+    return float(sum(2 * m.geom_size[g, 1] for g in geoms))
+
+
+def oesophagus_share(start, length):
+    """Share of each link (start along the pivot axis, length) that lies behind the cardia, in [0, 1].
+
+    Works on NumPy and torch arrays alike; a point body (length 0) is behind when its start is.
+    """
+    return (-start / (length + 1e-9)).clip(0.0, 1.0)
 
 
 @dataclass
@@ -53,9 +67,9 @@ class Simulator:
     """One scene's model and data with named access to what the task needs."""
 
     def __init__(self, env: str = "DE", fidelity: str = "fast", path: Path | None = None,
-                 load: PeriodicLoad | None = None):
+                 load: PeriodicLoad | None = None, version: int = CURRENT_VERSION):
         self.env = condition(env)
-        self.path = Path(path) if path else scene.scene_path(env, fidelity)
+        self.path = Path(path) if path else scene.scene_path(env, fidelity, version)
         if not self.path.exists():
             raise FileNotFoundError(f"scene file {self.path} is missing; regenerate the scenes "
                                     "with `make models` (python -m mjendo.scene)")
@@ -87,10 +101,23 @@ class Simulator:
         self.flex = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_FLEX, scene.FLEX)
         self._vert_adr = int(m.flex_vertadr[self.flex]) if self.flex >= 0 else 0
         # Geoms of the endoscope: every geom on a body below the carriage.
-        carriage = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "carriage")
+        carriage = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, endoscope.CARRIAGE)
         scope_bodies = {b for b in range(m.nbody) if self._below(m, b, carriage)}
         self.scope_geom = np.zeros(m.ngeom, bool)
         self.scope_geom[[g for g in range(m.ngeom) if m.geom_bodyid[g] in scope_bodies]] = True
+        # The oesophagus carries the tube behind a compliant cardia pivot: without that support the tube's
+        # weight behind the cardia would lever the pivot (it is still simulated, to be fed in).
+        self.pivot = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, endoscope.PIVOT)
+        self.support_body = np.array(sorted(scope_bodies), dtype=np.int64) if self.pivot >= 0 else np.zeros(0, int)
+        self.support_length = np.array([link_length(m, b) for b in self.support_body])
+        self.support_weight = -m.body_mass[self.support_body, None] * m.opt.gravity[None, :]
+        # Where each link starts along the pivot's axis at insertion 0 (the straight tube of qpos0): the tube
+        # behind the cardia lies on that axis, so how much of each link is behind depends on insertion alone
+        # (both backends read it from qpos, never from positions a restart may have left stale).
+        d0 = mujoco.MjData(m)
+        mujoco.mj_kinematics(m, d0)
+        axis0 = d0.xmat[self.pivot].reshape(3, 3)[:, 2] if self.pivot >= 0 else np.zeros(3)
+        self.support_start = (d0.xpos[self.support_body] - d0.xpos[max(self.pivot, 0)]) @ axis0
         self._cable_max = m.actuator_ctrlrange[self.cable_act, 1].copy()
         self._insert_range = m.actuator_ctrlrange[self.insert_act].copy()
         self._f6 = np.zeros(6)
@@ -172,12 +199,20 @@ class Simulator:
         c[self.cable_act] = np.minimum(np.maximum(cable_pull, -self._cable_max), self._cable_max)
         c[self.insert_act] = min(max(insertion, self._insert_range[0]), self._insert_range[1])
 
+    def support(self) -> None:
+        """Hold up the part of the tube that is still in the oesophagus (behind the cardia pivot)."""
+        d = self.data
+        behind = oesophagus_share(self.support_start + d.qpos[self.insert_qpos], self.support_length)
+        d.xfrc_applied[self.support_body, :3] = behind[:, None] * self.support_weight
+
     def step(self, n: int = 1) -> None:
         """Advance n physics steps, driving the periodic load; raise on divergence."""
         m, d = self.model, self.data
         for _ in range(n):
             if self.load_act >= 0:
                 d.ctrl[self.load_act] = square_wave(d.time, self.load_amplitude, self.half_period)
+            if self.support_body.size:
+                self.support()
             mujoco.mj_step(m, d)
         self.check()
 

@@ -1,78 +1,306 @@
-"""Verify target reachability in simulation and write the target lists A and B.
+"""Targets on the lumen surface, and the reachability map they are drawn from.
 
-``anatomy.build`` proposes candidate targets geometrically (lumen vertices
-near the free-space workspace). This module keeps only candidates the
-endoscope actually gets close to in the static stomach, by seeded random
-exploration with contact (``python -m mjendo.targets``), then splits them
-into list A (training, 2/3) and list B (held out, 1/3), interleaved around
-the insertion axis so both cover the same regions.
+A target is a point on a lumen triangle (three vertex ids and barycentric weights), so it moves with
+the wall. ``python -m mjendo.targets map`` measures, for candidate points spread over the whole lumen,
+
+* the **free-space distance**: the closest the tip comes with the stomach removed (FE), over a dense
+  quasi-static sweep of insertion x bending direction x bending magnitude;
+* the **reach with the wall**: the closest the tip comes in the static stomach (SE), over scripted
+  insertions at fixed bending (the tube rides along the wall), seeded random exploration with contact
+  and a goal-conditioned pass (the damped-least-squares controller aimed at every point still unreached);
+
+classifies every point (free: free-space distance < 3 mm; contact-aided: >= 10 mm and reached with the
+wall within 3 mm; between: 3-10 mm; out of reach: the rest) and draws the lists: F (the free points,
+FE's own targets), A (training) and B (held out), A and B interleaved over the wall with about two
+thirds contact-aided. It writes ``models/stomach/targets.json``. Task version 0 used lumen vertices
+(``stomach.json``'s lists); :func:`load` serves both.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import time
+from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
-from mjendo import anatomy
-from mjendo.units import to_mm
+from mjendo import anatomy, cli, paths
+from mjendo.config import CURRENT_VERSION, PAPER_SUCCESS_MM, ConfigError
+from mjendo.units import from_mm, to_mm
 
-REACH_MM = 6.0  # a candidate is kept when exploration brought the tip this close
-EPISODES = 400
-STEPS = 128
-# The exploration's own step sizes (those that produced the committed lists):
-# tuning the policies' action scale must not move the targets.
-EXPLORE_SCALES = {"cable_mm_per_unit": 2.5, "insertion_mm_per_unit": 5.0}
+TARGETS_FILE = paths.STOMACH_DIR / "targets.json"
+FREE_MM = PAPER_SUCCESS_MM  # free: the tip reaches the point in free space (the success distance)
+CONTACT_AIDED_MM = 10.0  # contact-aided: free space misses it by this much or more
+MIN_CARDIA_MM = 35.0  # targets this close to the cardia are in the scope's blind start
+SPACING_MM = 6.0  # listed targets lie at least this far apart (no near-duplicates)
+CONTACT_SHARE = 2 / 3  # of lists A and B: the paper's A reaches 26-34 % outside FE
+SPLIT = "ABABA"  # A 3/5, B 2/5: B holds 50 or more targets, enough to report success per target
 
 
-def explore(episodes: int = EPISODES, seed: int = 0, fidelity: str = "fast", progress: bool = True) -> tuple:
-    """Closest tip approach (mm) to every candidate over seeded random exploration in SE."""
+@dataclass
+class TargetTable:
+    """Target points by id: each a lumen triangle and weights; the named lists hold ids."""
+
+    ids: np.ndarray  # (n,) int
+    tris: np.ndarray  # (n, 3) vertex ids
+    bary: np.ndarray  # (n, 3) weights, summing to 1
+    lists: dict[str, list[int]]
+    info: dict
+
+    def rows(self, ids) -> np.ndarray:
+        """Row of each id in the table."""
+        where = {int(i): r for r, i in enumerate(self.ids)}
+        return np.array([where[int(i)] for i in ids], dtype=np.int64)
+
+    def positions(self, vertices: np.ndarray, ids) -> np.ndarray:
+        """Positions of target points given every vertex position (m)."""
+        r = self.rows(ids)
+        return np.einsum("nk,nkd->nd", self.bary[r], vertices[self.tris[r]])
+
+
+def load(version: int = CURRENT_VERSION, path: Path = TARGETS_FILE) -> TargetTable:
+    """The target table of a task version (version 0: lumen vertices; later: surface points)."""
+    if version == 0:
+        st = anatomy.load()
+        ids = np.array(sorted(set(st.targets_a + st.targets_b)), dtype=np.int64)
+        tris = np.repeat(ids[:, None], 3, axis=1)
+        bary = np.tile([1.0, 0.0, 0.0], (len(ids), 1))
+        return TargetTable(ids, tris, bary, {"A": st.targets_a, "B": st.targets_b, "F": st.targets_a}, {})
+    path = Path(path)
+    if not path.exists():
+        raise ConfigError(f"{path} is missing; make it with `python -m mjendo.targets map`")
+    meta = json.loads(path.read_text())
+    pts = meta["points"]
+    return TargetTable(np.array([p["id"] for p in pts], dtype=np.int64), np.array([p["tri"] for p in pts]),
+                       np.array([p["bary"] for p in pts]), meta["lists"], meta["info"])
+
+
+# --------------------------------------------------------------------------
+# Candidates and measurement.
+
+BARY_SAMPLES = np.array([[1 / 3, 1 / 3, 1 / 3], [2 / 3, 1 / 6, 1 / 6], [1 / 6, 2 / 3, 1 / 6], [1 / 6, 1 / 6, 2 / 3]])
+
+
+def lumen_triangles(st: anatomy.Stomach) -> np.ndarray:
+    """Boundary triangles of the wall whose vertices all lie on the lumen."""
+    faces = st.mesh.boundary_faces()
+    return faces[st.mesh.inner[faces].all(axis=1)]
+
+
+def candidates(st: anatomy.Stomach) -> tuple[np.ndarray, np.ndarray]:
+    """Candidate points: four per lumen triangle (centroid and towards each corner), away from the cardia."""
+    tris = lumen_triangles(st)
+    t = np.repeat(tris, len(BARY_SAMPLES), axis=0)
+    b = np.tile(BARY_SAMPLES, (len(tris), 1))
+    p = np.einsum("nk,nkd->nd", b, st.mesh.points[t])
+    keep = np.linalg.norm(p - st.entry, axis=1) > from_mm(MIN_CARDIA_MM)
+    return t[keep], b[keep]
+
+
+def _closest(best: np.ndarray, tip: np.ndarray, points: np.ndarray) -> None:
+    np.minimum(best, np.linalg.norm(points - tip, axis=1), out=best)
+
+
+def _pulls(direction: float, magnitude: float) -> np.ndarray:
+    """Cable pulls (m) bending towards ``direction`` (rad about the tube): pull one side, pay out the other."""
+    c, s = np.cos(direction), np.sin(direction)
+    return magnitude * np.array([c, -c, s, -s])
+
+
+def free_sweep(version: int, points: np.ndarray, progress: bool = True) -> np.ndarray:
+    """Closest approach (m) of the tip to each point in free space: insertion x direction x bending ramps."""
+    from tqdm import tqdm
+
+    from mjendo.sim import Simulator
+
+    sim = Simulator("FE", "fast", version=version)
+    lo, hi = sim.insertion_range
+    pull_max = float(sim.cable_pull_max[0])
+    dt = sim.model.opt.timestep
+    settle, ramp = max(1, int(round(0.3 / dt))), max(1, int(round(0.05 / dt)))
+    best = np.full(len(points), np.inf)
+    depths = np.arange(0.0, hi + 1e-9, from_mm(5.0))
+    for ins in tqdm(depths, desc="free-space sweep", disable=not progress):
+        for direction in np.linspace(0, 2 * np.pi, 24, endpoint=False):
+            sim.reset()
+            sim.set_controls(np.zeros(4), ins)
+            sim.step(settle)
+            for mag in np.linspace(0, pull_max, 25):  # slow ramp: quasi-static
+                sim.set_controls(_pulls(direction, mag), ins)
+                sim.step(ramp)
+                _closest(best, sim.tip_pos(), points)
+    return best
+
+
+def wall_reach(version: int, tris: np.ndarray, bary: np.ndarray, episodes: int, seed: int,
+               progress: bool = True) -> np.ndarray:
+    """Closest approach (m) of the tip to each point (moving with the wall) in SE, using contact."""
     from tqdm import tqdm
 
     from mjendo.task import NavigationTask
 
-    st = anatomy.load()
-    cand = np.array(sorted(set(st.info.get("candidates", st.targets_a + st.targets_b))))
-    task = NavigationTask(env="SE", fidelity=fidelity, max_steps=STEPS, randomize_phase=False, **EXPLORE_SCALES)
+    ids = np.arange(len(tris))
+    table = TargetTable(ids, tris, bary, {"A": ids.tolist()}, {})  # the candidates, before any list exists
+    task = NavigationTask(env="SE", version=version, max_steps=10**6, randomize_phase=False, table=table)
+    sim = task.sim
+    best = np.full(len(tris), np.inf)
+
+    def record() -> None:
+        _closest(best, sim.tip_pos(), np.einsum("nk,nkd->nd", bary, sim.vertices()[tris]))
+
     rng = np.random.default_rng(seed)
-    best = np.full(len(cand), np.inf)
-    for ep in tqdm(range(episodes), desc="exploring", disable=not progress):
-        task.reset(np.random.default_rng(seed + ep))
+    n_steps = 128
+    # Scripted: bend to a fixed direction and magnitude, then insert all the way (the tube rides the wall),
+    # then sweep the bending direction round at full depth.
+    scripts = [(d, m) for d in np.linspace(0, 2 * np.pi, 12, endpoint=False) for m in (0.0, 0.15, 0.3, 0.4)]
+    for direction, mag in tqdm(scripts, desc="scripted insertions", disable=not progress):
+        task.reset(rng)
+        bend = np.array([np.cos(direction), -np.cos(direction), np.sin(direction), -np.sin(direction)]) * mag
+        for k in range(n_steps):
+            a = np.concatenate([bend if k < 12 else np.zeros(4), [0.4 if k >= 12 else 0.0]])
+            res = task.step(a)
+            record()
+            if res.truncated:
+                break
+        for k in range(48):  # sweep round at depth
+            phi = direction + 2 * np.pi * k / 48
+            task.step(np.concatenate([0.4 * np.array([np.cos(phi), -np.cos(phi), np.sin(phi), -np.sin(phi)]), [0]]))
+            record()
+    for _ep in tqdm(range(episodes), desc="exploration with contact", disable=not progress):
+        task.reset(rng)
         a = np.zeros(5)
-        for k in range(STEPS):
+        for k in range(n_steps):
             if k % 8 == 0:  # piecewise-constant actions explore further than white noise
                 a = rng.uniform(-0.4, 0.4, 5)
                 a[4] = rng.uniform(-0.1, 0.4)
             res = task.step(a)
-            d = to_mm(np.linalg.norm(task.sim.vertices(cand) - task.sim.tip_pos(), axis=1))
-            best = np.minimum(best, d)
+            record()
             if res.terminated and res.info["exited"]:
                 break
-    return cand, best
+    # Goal-conditioned: aim the (contact-blind) damped-least-squares controller at every point still
+    # unreached, with a fifth of its actions random; the wall guides the tube on the way.
+    from mjendo.baseline import DLSController
+
+    dls = DLSController(task)
+    for target in tqdm(np.flatnonzero(best >= from_mm(PAPER_SUCCESS_MM)), desc="aimed with contact",
+                       disable=not progress):
+        task.reset(rng)
+        task.set_target(int(target))
+        dls.reset(task)
+        for _k in range(n_steps):
+            a = rng.uniform(-0.4, 0.4, 5) if rng.random() < 0.2 else dls.act(None, task)
+            res = task.step(a)
+            record()
+            if res.terminated:
+                break
+    return best
 
 
-def split(cand: np.ndarray, best: np.ndarray, st: anatomy.Stomach) -> tuple[list[int], list[int]]:
-    """Lists A and B of the candidates exploration reached (anatomy's split rule)."""
-    return anatomy.split_targets(st.mesh.points, st.entry, st.axis, cand[best < REACH_MM])
+def classify(free_mm: np.ndarray, wall_mm: np.ndarray) -> np.ndarray:
+    cls = np.full(len(free_mm), "out_of_reach", dtype=object)
+    cls[(free_mm >= FREE_MM) & (free_mm < CONTACT_AIDED_MM)] = "between"
+    cls[(free_mm >= CONTACT_AIDED_MM) & (wall_mm < PAPER_SUCCESS_MM)] = "contact_aided"
+    cls[free_mm < FREE_MM] = "free"
+    return cls
+
+
+def spread(points: np.ndarray, order: np.ndarray, spacing: float) -> list[int]:
+    """Greedy subset of ``order`` whose points lie at least ``spacing`` apart."""
+    kept: list[int] = []
+    for i in order:
+        if all(np.linalg.norm(points[i] - points[j]) >= spacing for j in kept):
+            kept.append(int(i))
+    return kept
+
+
+def draw_lists(points: np.ndarray, cls: np.ndarray, st: anatomy.Stomach, seed: int) -> dict[str, list[int]]:
+    """Lists F (free points), A and B (contact-aided and free, about two thirds contact-aided, interleaved)."""
+    rng = np.random.default_rng(seed)
+    spacing = from_mm(SPACING_MM)
+    aided = spread(points, rng.permutation(np.flatnonzero(cls == "contact_aided")), spacing)
+    free = spread(points, rng.permutation(np.flatnonzero(cls == "free")), spacing)
+    n_free = min(len(free), int(round(len(aided) * (1 - CONTACT_SHARE) / CONTACT_SHARE)))
+    a_aided, b_aided = anatomy.split_targets(points, st.entry, st.axis, aided, SPLIT)
+    a_free, b_free = anatomy.split_targets(points, st.entry, st.axis, free[:n_free], SPLIT)
+    return {"A": sorted(a_aided + a_free), "B": sorted(b_aided + b_free), "F": sorted(free)}
+
+
+def list_info(cls: np.ndarray, lists: dict) -> dict:
+    aided = set(np.flatnonzero(cls == "contact_aided").tolist())
+    return {"contact_aided_share": {k: round(len(aided & set(v)) / max(1, len(v)), 3) for k, v in lists.items()},
+            "sizes": {k: len(v) for k, v in lists.items()}}
+
+
+def redraw(meta: dict, seed: int) -> dict:
+    """Draw the lists again from a map's measured classes (no simulation): `python -m mjendo.targets lists`."""
+    from mjendo.task import free_targets
+
+    st = anatomy.load()
+    pts = meta["points"]
+    tris, bary = np.array([p["tri"] for p in pts]), np.array([p["bary"] for p in pts])
+    rest = np.einsum("nk,nkd->nd", bary, free_targets("fast", CURRENT_VERSION)[tris])
+    cls = np.array([p["class"] for p in pts], dtype=object)
+    lists = draw_lists(rest, cls, st, seed)
+    meta["info"].update(list_info(cls, lists), lists_command=f"python -m mjendo.targets lists --seed {seed}")
+    return {**meta, "lists": lists}
+
+
+def make_map(episodes: int, seed: int, progress: bool = True) -> dict:
+    """Measure every candidate and draw the lists; the content of targets.json."""
+    from mjendo.task import free_targets
+
+    st = anatomy.load()
+    tris, bary = candidates(st)
+    t0 = time.time()
+    rest = np.einsum("nk,nkd->nd", bary, free_targets("fast", CURRENT_VERSION)[tris])  # where FE's points float
+    free_mm = to_mm(free_sweep(CURRENT_VERSION, rest, progress))
+    wall_mm = to_mm(wall_reach(CURRENT_VERSION, tris, bary, episodes, seed, progress))
+    cls = classify(free_mm, wall_mm)
+    lists = draw_lists(rest, cls, st, seed)
+    counts = {c: int(np.sum(cls == c)) for c in ("free", "between", "contact_aided", "out_of_reach")}
+    info = {
+        "rule": (f"free: free-space distance < {FREE_MM} mm; contact_aided: >= {CONTACT_AIDED_MM} mm and reached "
+                 f"with the wall within {PAPER_SUCCESS_MM} mm; listed points at least {SPACING_MM} mm apart"),
+        "command": f"python -m mjendo.targets map --episodes {episodes} --seed {seed}",
+        "classes": counts,
+        "seconds": round(time.time() - t0, 1),
+        **list_info(cls, lists),
+    }
+    points = [{"id": i, "tri": [int(x) for x in tris[i]], "bary": [round(float(x), 6) for x in bary[i]],
+               "free_mm": round(float(free_mm[i]), 2), "wall_mm": round(float(wall_mm[i]), 2), "class": cls[i]}
+              for i in range(len(tris))]
+    return {"version": CURRENT_VERSION, "info": info, "lists": lists, "points": points}
+
+
+def load_error(path: Path):
+    raise ConfigError(f"{path} is missing; measure the map first with `python -m mjendo.targets map`")
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m mjendo.targets", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--episodes", type=int, default=EPISODES)
-    ap.add_argument("--seed", type=int, default=0)
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    m = sub.add_parser("map", help="measure every candidate point and write the target lists (targets.json)")
+    m.add_argument("--episodes", type=int, default=400, help="random exploration episodes with contact")
+    m.add_argument("--seed", type=int, default=0)
+    m.add_argument("--out", type=Path, default=TARGETS_FILE)
+    d = sub.add_parser("lists", help="draw lists F, A and B again from the map's measured classes (no simulation)")
+    d.add_argument("--seed", type=int, default=0)
+    d.add_argument("--out", type=Path, default=TARGETS_FILE)
     args = ap.parse_args(argv)
-    st = anatomy.load()
-    cand, best = explore(args.episodes, args.seed)
-    a, b = split(cand, best, st)
-    st.info["candidates"] = cand.tolist()
-    st.info["candidate_reach_mm"] = [round(float(x), 2) for x in best]
-    st.info["target_rule"] = (f"candidates approached within {REACH_MM} mm by {args.episodes} seeded random "
-                              f"exploration episodes in SE (seed {args.seed}): python -m mjendo.targets")
-    st.targets_a, st.targets_b = a, b
-    anatomy.save(st)
-    print(f"{len(cand)} candidates, {len(a) + len(b)} reachable: list A {len(a)}, list B {len(b)}")
-    return 0
+
+    def command() -> None:
+        if args.cmd == "map":
+            meta = make_map(args.episodes, args.seed)
+        else:
+            meta = redraw(json.loads(args.out.read_text()) if args.out.exists() else load_error(args.out), args.seed)
+        args.out.write_text(json.dumps(meta, indent=None, separators=(",", ":")).replace('{"id"', '\n{"id"') + "\n")
+        print(json.dumps(meta["info"], indent=1))
+        print(f"wrote {args.out}: lists " + ", ".join(f"{k} {len(v)}" for k, v in meta["lists"].items()))
+
+    return cli.run(command, ConfigError)
 
 
 if __name__ == "__main__":

@@ -14,15 +14,14 @@ from functools import lru_cache
 import mujoco
 import numpy as np
 
-from mjendo import anatomy
+from mjendo import anatomy, mdp, targets
 from mjendo.config import (
     ACTION_SIZE,
-    CONDITIONS,
+    CURRENT_VERSION,
     PAPER_ACTION_LIMIT,
-    PAPER_BONUS,
     PAPER_EXIT_X_MM,
-    PAPER_SUCCESS_MM,
     TaskConfig,
+    default_target_list,
     substeps,
     task_config,
 )
@@ -70,9 +69,9 @@ def obs_bounds(cfg: TaskConfig) -> tuple[np.ndarray, np.ndarray]:
 
 
 @lru_cache(maxsize=4)
-def free_targets(fidelity: str) -> np.ndarray:
-    """Where the wall would be (FE): every lumen vertex of the settled static stomach."""
-    sim = Simulator("SE", fidelity)
+def free_targets(fidelity: str, version: int = CURRENT_VERSION) -> np.ndarray:
+    """Where the wall would be (FE): every vertex of the settled static stomach."""
+    sim = Simulator("SE", fidelity, version=version)
     sim.set_controls(np.zeros(4), sim.insertion_range[0])  # scope out of the way
     sim.step(int(round(SETTLE_S / sim.model.opt.timestep)))
     return sim.vertices()
@@ -90,14 +89,18 @@ class StepResult:
 class NavigationTask:
     """Reach a target vertex on the stomach wall with the endoscope tip."""
 
-    def __init__(self, cfg: TaskConfig | None = None, **kw):
+    def __init__(self, cfg: TaskConfig | None = None, table: targets.TargetTable | None = None, **kw):
         self.cfg = cfg if cfg is not None else task_config(**kw)
         c = self.cfg
-        self.sim = Simulator(c.env, c.fidelity)
+        self.sim = Simulator(c.env, c.fidelity, version=c.version)
         self.stomach = anatomy.load()
-        listname = c.target_list or CONDITIONS[c.env].target_list
+        table = table or targets.load(c.version)
+        listname = c.target_list or default_target_list(c.env, c.version)
         self.target_list = listname
-        self.targets = np.array(self.stomach.targets_a if listname == "A" else self.stomach.targets_b)
+        self.targets = np.array(table.lists[listname], dtype=np.int64)
+        rows = table.rows(self.targets)
+        # Each listed target's lumen triangle and weights, in list order (the batched backend reads them too).
+        self.target_tri, self.target_bary = table.tris[rows], table.bary[rows]
         self.cable_step = from_mm(c.cable_mm_per_unit)
         self.insertion_step = from_mm(c.insertion_mm_per_unit)
         self.substeps = substeps(c)
@@ -108,10 +111,11 @@ class NavigationTask:
         # cardia, so "x_EE < 15 mm" means the tip is back behind the cardia.
         self.axis = self.stomach.axis
         self.origin = self.stomach.entry - from_mm(PAPER_EXIT_X_MM) * self.axis
-        self._fe_targets = None if self.sim.has_stomach else free_targets(c.fidelity)
+        self._fe_targets = None if self.sim.has_stomach else free_targets(c.fidelity, c.version)
         self._starts = self._settle()
         self._settled = self._starts[0]
         self.target = int(self.targets[0])
+        self._row = 0
         self.pulls = np.zeros(4)
         self.insertion = 0.0
         self.prev_axial = 0.0
@@ -172,15 +176,22 @@ class NavigationTask:
         if index not in set(self.targets.tolist()):
             raise ValueError(f"target {index} is not in target list {self.target_list}: {self.targets.tolist()}")
         self.target = int(index)
+        self._row = int(np.flatnonzero(self.targets == index)[0])
         self._mark_target(False)
         mujoco.mj_kinematics(self.sim.model, self.sim.data)  # place the moved marker for the first frame
         return self.observation()
 
     def target_pos(self) -> np.ndarray:
         """Target position now (m): it moves with the wall in DE/UE."""
-        if self._fe_targets is not None:
-            return self._fe_targets[self.target].copy()
-        return self.sim.vertices([self.target])[0]
+        r = self._row
+        corners = self._fe_targets[self.target_tri[r]] if self._fe_targets is not None \
+            else self.sim.vertices(self.target_tri[r])
+        return self.target_bary[r] @ corners
+
+    def list_positions(self) -> np.ndarray:
+        """Positions (m) of every target of the list now, in list order."""
+        verts = self._fe_targets if self._fe_targets is not None else self.sim.vertices()
+        return np.einsum("nk,nkd->nd", self.target_bary, verts[self.target_tri])
 
     def tip_x_mm(self) -> float:
         """Tip coordinate along the insertion axis in the paper's frame (mm)."""
@@ -206,7 +217,7 @@ class NavigationTask:
 
     def step(self, action) -> StepResult:
         a = self.clip_action(action)
-        sim, c = self.sim, self.cfg
+        sim = self.sim
         lim = sim.cable_pull_max
         self.pulls = np.minimum(np.maximum(self.pulls + a[:4] * self.cable_step, -lim), lim)
         lo, hi = sim.insertion_range
@@ -223,37 +234,28 @@ class NavigationTask:
             mujoco.mj_forward(sim.model, sim.data)
         self.steps += 1
         self.contact = sim.contact()
-        force_n = float(np.sqrt(self.contact.force @ self.contact.force))
-        self.peak_force = max(self.peak_force, force_n)
-        tip, target = sim.tip_pos(), self.target_pos()
-        delta = target - tip
-        dist = float(to_mm(np.sqrt(delta @ delta)))
         ok = instability is None
-        success = dist < PAPER_SUCCESS_MM and ok
-        exited = self.tip_x_mm() < PAPER_EXIT_X_MM and ok
-        self.sim.set_target_marker(target, TARGET_YELLOW if success else TARGET_WHITE)
-        terms = {
-            "reward_distance": -dist,
-            "reward_success": PAPER_BONUS if success else 0.0,
-            "reward_exit": -PAPER_BONUS if exited else 0.0,
-            "reward_force": -c.force_penalty * force_n,
-        }
+        out = mdp.outcome(self.cfg, sim.tip_pos()[None], self.target_pos()[None], self.origin, self.axis,
+                          self.contact.force[None], np.array([self.steps]), np.array([ok]))
+        out = {k: v[0] for k, v in out.items()}
+        self.peak_force = max(self.peak_force, float(out["force_n"]))
+        success = bool(out["is_success"])
+        self.sim.set_target_marker(self.target_pos(), TARGET_YELLOW if success else TARGET_WHITE)
         info = {
-            "distance_mm": dist,
-            "is_success": bool(success),
+            "distance_mm": float(out["distance_mm"]),
+            "is_success": success,
             "contact": bool(self.contact.active),
             "force_N": self.contact.force.copy(),
             "peak_force_N": self.peak_force,
             "target_index": self.target,
-            "exited": bool(exited),
+            "exited": bool(out["exited"]),
             "step": self.steps,
-            **terms,
+            **{k: float(out[k]) for k in mdp.REWARD_TERMS},
         }
-        truncated = self.steps >= c.max_steps or not ok
         if not ok:
             info["instability"] = instability
-        return StepResult(self.observation(delta), float(sum(terms.values())), bool(success or exited),
-                          bool(truncated and not (success or exited)), info)
+        return StepResult(self.observation(out["delta"]), float(out["reward"]), bool(out["terminated"]),
+                          bool(out["truncated"]), info)
 
     # ---------------------------------------------------------- observation
     def observation(self, delta: np.ndarray | None = None) -> np.ndarray:
@@ -261,12 +263,6 @@ class NavigationTask:
         sim = self.sim
         if delta is None:
             delta = self.target_pos() - sim.tip_pos()
-        obs = np.empty(self.obs_size, np.float32)
-        obs[0:3] = to_mm(delta)
-        obs[3:6] = to_mm(sim.tip_vel())
-        obs[6:10] = to_mm(sim.cable_lengths())
-        obs[10] = self.prev_axial
-        if self.cfg.force_obs:
-            obs[11] = 1.0 if self.contact.active else 0.0
-            obs[12:15] = self.contact.force / self.cfg.force_ref_n
-        return np.clip(obs, self.obs_low, self.obs_high, out=obs)
+        return mdp.observe(np, self.cfg, delta[None], sim.tip_vel()[None], sim.cable_lengths()[None],
+                           np.array([self.prev_axial]), np.array([float(self.contact.active)]),
+                           self.contact.force[None], self.obs_low, self.obs_high)[0]

@@ -14,6 +14,7 @@ import argparse
 import csv
 import os
 import re
+import shlex
 import shutil
 import signal
 import sys
@@ -339,7 +340,7 @@ def train(policy: str, timesteps: int | None = None, seed: int | None = None, n_
         raise SystemExit(130) from None
     wall = time.time() - t0
     meta.update({"timesteps": int(model.num_timesteps), "wall_s": final_meta.get("wall_s", 0.0) + wall,
-                 "steps_per_s": (model.num_timesteps - start) / max(wall, 1e-9), "command": " ".join(sys.argv),
+                 "steps_per_s": (model.num_timesteps - start) / max(wall, 1e-9), "command": command_as_typed(),
                  "training": cfg.to_dict()})
     artifacts.save(run, model, meta)
     venv.close()
@@ -349,6 +350,11 @@ def train(policy: str, timesteps: int | None = None, seed: int | None = None, n_
     print(f"done: {run} ({meta['timesteps']} steps, {meta['wall_s'] / 60:.1f} min)")
     _finish(run, policy, ship)
     return run
+
+
+def command_as_typed() -> str:
+    """The training command as a user types it (not a worker's interpreter path)."""
+    return shlex.join(["python", "-m", "mjendo.train", *sys.argv[1:]])
 
 
 def _finish(run: Path, policy: str, ship: bool) -> None:

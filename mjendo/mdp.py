@@ -1,0 +1,51 @@
+"""The MDP's step logic written once, over arrays of environments: reward, termination, observation.
+
+The CPU task (:mod:`mjendo.task`) calls these with one environment (NumPy arrays of shape (1, ...)),
+the batched backend (:mod:`mjendo.batch`) with every world (torch tensors of shape (N, ...)). Only
+operations that NumPy and torch spell alike are used, so the two backends cannot drift apart.
+Inputs are SI (metres, newtons); rewards and observations are millimetres, converted here.
+"""
+
+from __future__ import annotations
+
+from mjendo.config import PAPER_BONUS, PAPER_EXIT_X_MM, PAPER_SUCCESS_MM, TaskConfig
+from mjendo.units import MM_PER_M
+
+REWARD_TERMS = ("reward_distance", "reward_success", "reward_exit", "reward_force")
+
+
+def _norm(v):
+    return (v * v).sum(-1) ** 0.5
+
+
+def outcome(cfg: TaskConfig, tip, target, origin, axis, force, steps, ok) -> dict:
+    """Distance, success, exit, reward terms, reward, terminated and truncated of every environment.
+
+    ``ok`` is False where the physics diverged this step: such a step neither succeeds nor exits,
+    earns reward 0 and truncates the episode.
+    """
+    delta = target - tip
+    dist = _norm(delta) * MM_PER_M
+    success = (dist < PAPER_SUCCESS_MM) & ok
+    exited = (((tip - origin) * axis).sum(-1) * MM_PER_M < PAPER_EXIT_X_MM) & ok
+    force_n = _norm(force)
+    live = ok * 1.0
+    terms = {
+        "reward_distance": -dist * live,
+        "reward_success": PAPER_BONUS * success,
+        "reward_exit": -PAPER_BONUS * exited,
+        "reward_force": -cfg.force_penalty * force_n * live,
+    }
+    terminated = success | exited
+    return {"delta": delta, "distance_mm": dist, "is_success": success, "exited": exited, "force_n": force_n,
+            **terms, "reward": sum(terms.values()), "terminated": terminated,
+            "truncated": ((steps >= cfg.max_steps) | ~ok) & ~terminated}
+
+
+def observe(xp, cfg: TaskConfig, delta, tip_vel, cable, prev_axial, contact, force, low, high):
+    """Observation rows (see task.OBS_BLOCKS), clipped to their physical bounds; ``xp`` is numpy or torch."""
+    blocks = [delta * MM_PER_M, tip_vel * MM_PER_M, cable * MM_PER_M, prev_axial[:, None] * 1.0]
+    if cfg.force_obs:
+        blocks += [contact[:, None] * 1.0, force / cfg.force_ref_n]
+    obs = xp.asarray(xp.concatenate(blocks, 1), dtype=xp.float32)
+    return xp.minimum(xp.maximum(obs, low), high)

@@ -29,8 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from mjendo import paths
-from mjendo.config import ConfigError, TaskConfig, task_config
-from mjendo.train_config import POLICY_NAMES
+from mjendo.config import POLICY_NAMES, ConfigError, TaskConfig, task_config
 
 MODEL_FILE = "model.zip"
 NORM_FILE = "vecnormalize.pkl"

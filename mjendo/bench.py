@@ -20,6 +20,8 @@ import time
 
 import numpy as np
 
+from mjendo.config import CURRENT_VERSION, VERSIONS
+
 SCENES = [("FE", "fast")] + [(e, f) for f in ("fast", "full") for e in ("SE", "DE", "UE1", "UE2")]
 
 
@@ -39,7 +41,7 @@ def physics_figure(env: str, fidelity: str, repeats: int, seconds: float) -> dic
             "steps_per_s": med, "realtime_factor": med * dt, "contacts": int(np.median(contacts))}
 
 
-def env_figure(env: str, fidelity: str, repeats: int, steps: int) -> dict:
+def env_figure(env: str, fidelity: str, repeats: int, steps: int, version: int = CURRENT_VERSION) -> dict:
     """env.step rate, and its cost over the bare physics it runs.
 
     The bare run replays the same controls from the same start state with
@@ -49,7 +51,7 @@ def env_figure(env: str, fidelity: str, repeats: int, steps: int) -> dict:
 
     from mjendo.envs import EndoscopeEnv
 
-    e = EndoscopeEnv(env, fidelity=fidelity, force_obs=True)
+    e = EndoscopeEnv(env, fidelity=fidelity, force_obs=True, version=version)
     rng = np.random.default_rng(0)
     m, d, sub = e.task.sim.model, e.task.sim.data, e.task.substeps
     spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
@@ -79,7 +81,8 @@ def env_figure(env: str, fidelity: str, repeats: int, steps: int) -> dict:
         env_rates.append(steps / t_env)
         ratio.append(t_env / t_phys)
     return {"figure": "env", "env": env, "fidelity": fidelity, "env_steps_per_s": statistics.median(env_rates),
-            "step_cost_over_physics": statistics.median(ratio), "substeps": sub}
+            "step_cost_over_physics": statistics.median(ratio), "substeps": sub,
+            "control_period_s": e.task.control_dt, "version": version}
 
 
 def training_figure(vec_env: str, steps: int, n_envs: int | None = None) -> dict:
@@ -163,7 +166,7 @@ def _child(args) -> None:
     elif args.figure == "training":
         out = training_figure(args.vec_env, args.steps, args.n_envs)
     elif args.figure == "env":
-        out = env_figure(args.env, args.fidelity, args.repeats, args.steps)
+        out = env_figure(args.env, args.fidelity, args.repeats, args.steps, args.version)
     elif args.figure == "batched":
         out = batched_figure(args.env, args.fidelity, args.worlds, args.steps, args.solver)
     else:
@@ -239,6 +242,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--n-envs", type=int, help="training figure: environments (default: policy E's config)")
     ap.add_argument("--env", default="DE")
     ap.add_argument("--fidelity", default="fast")
+    ap.add_argument("--version", type=int, default=CURRENT_VERSION, help=argparse.SUPPRESS)
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--seconds", type=float, default=1.0, help="simulated seconds per physics repeat")
     ap.add_argument("--steps", type=int, default=200, help="env steps per env repeat")
@@ -257,10 +261,12 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{env:<6}{fid:<9}{r['nv']:>6}{r['steps_per_s']:>10.0f}{r['realtime_factor']:>12.2f}"
                   f"{r['contacts']:>10}", flush=True)
     if args.only in (None, "env"):
-        print(f"\n{'env (force-aware)':<22}{'env steps/s':>12}{'step / bare physics':>22}")
-        for env, fid in [("DE", "fast"), ("DE", "full")]:
-            r = _run(["--figure", "env", "--env", env, "--fidelity", fid, *common])
-            print(f"{env + ' ' + fid:<22}{r['env_steps_per_s']:>12.0f}{r['step_cost_over_physics']:>22.3f}",
+        # Every task version in one run: a control step of version 1 simulates 100 ms, of version 0 30 ms.
+        print(f"\n{'env (force-aware)':<22}{'env steps/s':>12}{'step / bare physics':>22}{'sim s / wall s':>16}")
+        for version, env, fid in [(v, "DE", f) for v in sorted(VERSIONS, reverse=True) for f in ("fast", "full")]:
+            r = _run(["--figure", "env", "--env", env, "--fidelity", fid, "--version", str(version), *common])
+            print(f"{env + ' ' + fid + ' v' + str(version):<22}{r['env_steps_per_s']:>12.0f}"
+                  f"{r['step_cost_over_physics']:>22.3f}{r['env_steps_per_s'] * r['control_period_s']:>16.1f}",
                   flush=True)
     if args.only in (None, "training"):
         # The variants alternate, so a noisy spell on the machine hits all of them alike. E's config

@@ -1,10 +1,12 @@
 """``make eval``: the paper's study measured by mjendo, next to the paper's tables.
 
 Every shipped policy (A-E) and the DLS baseline run N seeded 80-step trials in
-SE and DE (target list A) and UE1, UE2 (list B); policy A also in FE. Trials
-are spread over worker processes. Writes to ``eval/results/``: trials.csv
-(one row per trial), summary.csv, report.md (ours next to the paper's, with
-the command, commit and wall time) and the figures.
+SE and DE (target list A) and UE1, UE2 (list B); policy A also in FE (list F).
+Trial i aims at target i mod the list's length, at the load phase its seed
+draws. Trials are spread over worker processes. Writes to ``--out`` (default
+``runs/eval/<fidelity>/``, untracked): trials.csv (one row per trial, with the
+safety and target-motion measures), summary.csv, report.md (ours next to the
+paper's, with the command, commit and wall time) and the figures.
 """
 
 from __future__ import annotations
@@ -24,11 +26,22 @@ import numpy as np
 
 from mjendo import cli, paths, rollout
 from mjendo.artifacts import PolicyError
-from mjendo.config import PAPER_EVAL_STEPS, PAPER_RESULTS, PAPER_SUCCESS_MM, ConfigError
+from mjendo.config import (
+    CURRENT_VERSION,
+    PAPER_EVAL_STEPS,
+    PAPER_RESULTS,
+    PAPER_SUCCESS_MM,
+    POLICY_NAMES,
+    VERSIONS,
+    ConfigError,
+)
 from mjendo.units import to_mm
 
-COMMITTED = paths.DATA / "eval" / "results"  # the committed study (written only with --out eval/results)
-CONTROLLERS = ("A", "B", "C", "D", "E", "baseline")
+CONTROLLERS = (*POLICY_NAMES, "baseline")
+# Trial seeds start here, disjoint from every other seed range: training environments seed * 1000 + rank
+# (train.make_env), training's periodic evaluations 10,000,000 + (train.TRAINING_EVAL_SEED), the study's
+# validation 20,000,000 + (study.VALIDATION_SEED). No training episode replays an evaluation trial.
+EVAL_SEED_BASE = 30_000_000
 
 
 def default_out(fidelity: str) -> Path:
@@ -146,14 +159,14 @@ def trial_records(env, ctrl, name: str, seeds: list[int], keep_paths: bool = Fal
 
 
 def run_trials(controller: str, env_name: str, seeds: list[int], keep_paths: bool = False,
-               fidelity: str = "fast") -> tuple[list, list]:
+               fidelity: str = "fast", version: int = CURRENT_VERSION) -> tuple[list, list]:
     """Run trials of one cell; a broken policy marks every trial with its error instead of raising."""
     from mjendo.envs import EndoscopeEnv
-    from mjendo.policies import force_obs_of, load_controller
+    from mjendo.policies import force_obs_of, load_controller, version_of
 
     try:
         env = EndoscopeEnv(env_name, force_obs=force_obs_of(controller), max_steps=PAPER_EVAL_STEPS,
-                           fidelity=fidelity)
+                           fidelity=fidelity, version=version_of(controller, version))
         ctrl = load_controller(controller, env.task)
     except Exception as exc:  # reported per cell, the other cells still run
         msg = f"{type(exc).__name__}: {exc}".replace("\n", " ")
@@ -164,12 +177,12 @@ def run_trials(controller: str, env_name: str, seeds: list[int], keep_paths: boo
 
 
 def _job(args):
-    controller, env_name, seeds, keep, fidelity = args
+    controller, env_name, seeds, keep, fidelity, version = args
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     import torch
 
     torch.set_num_threads(1)
-    return run_trials(controller, env_name, seeds, keep, fidelity)
+    return run_trials(controller, env_name, seeds, keep, fidelity, version)
 
 
 def wilson(successes: int, n: int, z: float = 1.96) -> tuple[float, float]:
@@ -279,7 +292,8 @@ def _write_csv(path: Path, rows: list[dict]) -> None:
 
 def evaluate(trials: int = 200, controllers=CONTROLLERS, workers: int = 2, out: Path | None = None, seed: int = 0,
              command: str = "make eval", fidelity: str = "fast", envs: tuple[str, ...] | None = None,
-             overwrite: bool = False) -> dict:
+             overwrite: bool = False, version: int = CURRENT_VERSION) -> dict:
+    """Every cell's trials; policies act in the task version they trained in, the baseline in ``version``."""
     from tqdm import tqdm
 
     if trials < 1 or workers < 1 or seed < 0:
@@ -292,10 +306,10 @@ def evaluate(trials: int = 200, controllers=CONTROLLERS, workers: int = 2, out: 
     jobs = []
     study = [(c, e) for c, e in cells(controllers) if envs is None or e in envs]
     for c, e in study:
-        seeds = [seed * 100003 + i for i in range(trials)]
+        seeds = [EVAL_SEED_BASE + seed * 100003 + i for i in range(trials)]
         for j in range(0, trials, chunk):
             keep = c == "E" and e == "DE" and j == 0
-            jobs.append((c, e, seeds[j:j + chunk], keep, fidelity))
+            jobs.append((c, e, seeds[j:j + chunk], keep, fidelity, version))
     t0 = time.time()
     all_trials, tip_paths = [], []
     with get_context("spawn").Pool(workers) as pool:
@@ -331,11 +345,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", type=Path, help="results folder (default runs/eval/<fidelity>, untracked; the "
                     "committed study is eval/results)")
     ap.add_argument("--overwrite", action="store_true", help="replace a report made with more trials per cell")
+    ap.add_argument("--version", type=int, default=CURRENT_VERSION, choices=sorted(VERSIONS),
+                    help="task version of the baseline's trials (policies act in the version they trained in)")
     a = ap.parse_args(argv)
     command = "python -m mjendo.evaluation " + " ".join(argv if argv is not None else sys.argv[1:])
     return cli.run(lambda: evaluate(a.trials, tuple(a.policies.split(",")), a.workers, a.out, a.seed, command=command,
                                     fidelity=a.fidelity, envs=tuple(a.envs.split(",")) if a.envs else None,
-                                    overwrite=a.overwrite), ConfigError, PolicyError)
+                                    overwrite=a.overwrite, version=a.version), ConfigError, PolicyError)
 
 
 if __name__ == "__main__":

@@ -1,7 +1,7 @@
 """How close the fast stomach is to the full FEM one: the protocols behind the fidelity figures.
 
 Three measurements, each defined once here and used by ``make bench --only
-fidelity``, the calibration (``python -m mjendo.fidelity calibrate``) and the
+fidelity``, the calibration (``python -m mjendo.fidelity compare``) and the
 tests:
 
 * **target motion**: peak-to-peak displacement (mm) of every target vertex
@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from mjendo import anatomy, scene
-from mjendo.config import FIDELITIES, Fidelity, StomachShape, scene_config
+from mjendo.config import FIDELITIES, VERSIONS, Fidelity, StomachShape, fidelity_preset, scene_config
 from mjendo.scene import SOLVERS
 from mjendo.sim import Simulator
 from mjendo.units import from_mm, to_mm
@@ -259,7 +259,7 @@ def solver_study(caps: list[int], tolerances: list[float], fidelity: str = "full
     """
     import mujoco
 
-    preset = FIDELITIES[fidelity]
+    preset = fidelity_preset(fidelity)
     for solver, cap, tol in itertools.product(solvers or (preset.solver,), caps, tolerances):
         fid = replace(preset, solver=solver, iterations=cap, tolerance=tol)
         sim = simulator("DE", fid)
@@ -280,6 +280,37 @@ def solver_study(caps: list[int], tolerances: list[float], fidelity: str = "full
             f"{env} {m['median_mm']:.2f}/{m['max_mm']:.2f}" for env, m in motion.items()), flush=True)
 
 
+def spikes(version: int, episodes: int = 20, seed: int = 0, env: str = "DE") -> dict:
+    """Contact-force spikes under bang-bang random actions in the fast stomach of a task version.
+
+    Every control step records the resultant contact force and how far the tip jumped; the share of steps
+    above 1, 2, 10 and 20 N, the largest force, and the tip jump on the steps above 10 N against the rest
+    tell a physical lever (large force, small jump) from a numerical event (large force with a jump).
+    """
+    from mjendo.task import NavigationTask
+
+    task = NavigationTask(env=env, version=version, force_obs=True, max_steps=128)
+    rng = np.random.default_rng(seed)
+    force, jump = [], []
+    for _ in range(episodes):
+        task.reset(rng)
+        tip = task.sim.tip_pos()
+        for _k in range(128):
+            res = task.step(rng.choice([-0.4, 0.4], 5))
+            force.append(float(np.linalg.norm(res.info["force_N"])))
+            now = task.sim.tip_pos()
+            jump.append(float(np.linalg.norm(now - tip)) * 1e3)
+            tip = now
+            if res.terminated or res.truncated:
+                break
+    f, j = np.array(force), np.array(jump)
+    big = f > 10.0
+    return {"version": version, "steps": len(f), "over_1N": float(np.mean(f > 1)), "over_2N": float(np.mean(f > 2)),
+            "over_10N": float(np.mean(big)), "over_20N": float(np.mean(f > 20)), "max_N": float(f.max()),
+            "median_jump_mm": float(np.median(j)),
+            "median_jump_over_10N_mm": float(np.median(j[big])) if big.any() else float("nan")}
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m mjendo.fidelity", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -297,7 +328,15 @@ def main(argv: list[str] | None = None) -> int:
     sv.add_argument("--solvers", nargs="+", choices=list(SOLVERS), default=[], help="default: the preset's")
     sv.add_argument("--iterations", type=int, nargs="+", default=[1000])
     sv.add_argument("--tolerances", type=float, nargs="+", default=[1e-8, 1e-7, 1e-6])
+    sp = sub.add_parser("spikes", help="contact-force spikes under bang-bang random actions (fast DE)")
+    sp.add_argument("--versions", type=int, nargs="+", default=sorted(VERSIONS))
+    sp.add_argument("--episodes", type=int, default=20)
     args = ap.parse_args(argv)
+    if args.cmd == "spikes":
+        for v in args.versions:
+            print(", ".join(f"{k} {x:.4g}" if isinstance(x, float) else f"{k} {x}" for k, x in spikes(v, args.episodes)
+                            .items()), flush=True)
+        return 0
     if args.cmd == "refine":
         refinement_study(args.levels)
         return 0
@@ -306,7 +345,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     given = {"cellcount": args.cells, "young_scale": args.young_scale, "load_gains": args.load_gains}
     changes = {k: tuple(v) if isinstance(v, list) else v for k, v in given.items() if v}
-    for k, v in compare(replace(FIDELITIES["fast"], name="candidate", **changes)).items():
+    for k, v in compare(replace(fidelity_preset("fast"), name="candidate", **changes)).items():
         print(f"{k:<40}{v:8.2f}")
     return 0
 

@@ -229,3 +229,45 @@ def all_figures(rows: list[dict], paths: list[dict], out: Path) -> list[tuple[Pa
                      "Training of shipped policies " + ", ".join(rest) + ": one row per policy, episode reward "
                      "and success rate of training episodes and periodic 80-step evaluations."))
     return made
+
+
+CLASS_COLOURS = {"free": "#4c9be8", "between": "#bbbbbb", "contact_aided": "#e8734c", "out_of_reach": "#555555"}
+
+
+def target_map(wall: np.ndarray, points: np.ndarray, classes: np.ndarray, lists: dict[str, np.ndarray],
+               workspaces: dict[str, np.ndarray], out: Path) -> Path:
+    """Two views (x-z: the J's plane; x-y) of the lumen, the free-space workspaces and the classified points.
+
+    ``wall``: lumen vertices at rest; ``points``: candidate positions; ``workspaces``: name -> tip positions
+    of the free-space sweep (metres). Lists A and B are ringed.
+    """
+    plt = _plt()
+    fig, axes = plt.subplots(1, 3, figsize=(15, 5.2))
+    views = [(0, 2, "x (mm)", "z (mm)")]
+    for ax, (name, tips) in zip(axes[:2], workspaces.items(), strict=True):
+        for i, j, xl, yl in views:
+            ax.scatter(to_mm(wall[:, i]), to_mm(wall[:, j]), s=4, c="#d9a0a0", label="stomach lumen (at rest)")
+            ax.scatter(to_mm(tips[::7, i]), to_mm(tips[::7, j]), s=1, c="#2060b0", alpha=0.15,
+                       label="tip in free space")
+            ax.set_xlabel(xl)
+            ax.set_ylabel(yl)
+        ax.set_title(f"free-space workspace, {name}")
+        ax.set_aspect("equal")
+        ax.legend(loc="lower left", fontsize=7, markerscale=4)
+    ax = axes[2]
+    for c, colour in CLASS_COLOURS.items():
+        sel = classes == c
+        ax.scatter(to_mm(points[sel, 0]), to_mm(points[sel, 2]), s=6, c=colour, label=f"{c} ({sel.sum()})")
+    for name, marker in (("A", "o"), ("B", "s")):
+        p = points[lists[name]]
+        ax.scatter(to_mm(p[:, 0]), to_mm(p[:, 2]), s=40, facecolors="none", edgecolors="k", marker=marker,
+                   linewidths=0.8, label=f"list {name} ({len(p)})")
+    ax.set_title("candidate targets by class (x-z)")
+    ax.set_xlabel("x (mm)")
+    ax.set_ylabel("z (mm)")
+    ax.set_aspect("equal")
+    ax.legend(loc="lower left", fontsize=7)
+    fig.tight_layout()
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+    return out

@@ -14,7 +14,7 @@ import numpy as np
 
 from mjendo import artifacts
 from mjendo.artifacts import PolicyError
-from mjendo.config import ACTION_SIZE, PAPER_ACTION_LIMIT, ConfigError
+from mjendo.config import ACTION_SIZE, CURRENT_VERSION, PAPER_ACTION_LIMIT, ConfigError
 from mjendo.task import ACTION_SCALE_FIELDS, NavigationTask, obs_size
 
 __all__ = ["PPOController", "PolicyError", "RandomController", "force_obs_of", "load_controller"]
@@ -94,6 +94,13 @@ def force_obs_of(spec: str) -> bool:
     if spec in NON_LEARNED:
         return True  # they ignore the observation's force part
     return artifacts.force_obs(artifacts.resolve(spec))
+
+
+def version_of(spec: str, default: int = CURRENT_VERSION) -> int:
+    """The task version the controller named by ``spec`` was trained in (non-learned ones act in any)."""
+    if spec in NON_LEARNED:
+        return default
+    return int(artifacts.trained_task(artifacts.read_meta(artifacts.resolve(spec)))["version"])
 
 
 def load_controller(spec: str, task: NavigationTask | None = None):

@@ -65,3 +65,24 @@ def difference(a: dict, b: dict) -> dict:
     d = a["replicates"] - b["replicates"]
     lo, hi = interval(d)
     return {"mean": a["mean"] - b["mean"], "low": lo, "high": hi, "excludes_zero": bool(lo > 0 or hi < 0)}
+
+
+def crossed(tables: Sequence[np.ndarray], reps: int = REPS, rng: np.random.Generator | None = None) -> list[np.ndarray]:
+    """Bootstrap replicates resampling training seeds and targets, for several policies at once.
+
+    Each table is (seeds, targets): a policy's success rate per training seed and target (over its trials
+    there). Every replicate draws targets with replacement once, shared by all tables (the policies are
+    compared on the same targets), and each table's seeds independently; the statistic is the mean over
+    drawn seeds and drawn targets. Returns one replicate array per table.
+    """
+    rng = rng or np.random.default_rng(0)
+    n_targets = {t.shape[1] for t in tables}
+    if len(n_targets) != 1:
+        raise ValueError("every table must cover the same targets")
+    targets = rng.integers(0, n_targets.pop(), (reps, tables[0].shape[1]))
+    out = []
+    for t in tables:
+        seeds = rng.integers(0, t.shape[0], (reps, t.shape[0]))
+        by_target = t[:, None, :][seeds[:, :, None], 0, targets[:, None, :]]  # (reps, seeds, targets)
+        out.append(by_target.mean(axis=(1, 2)))
+    return out

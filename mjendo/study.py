@@ -36,9 +36,8 @@ import numpy as np
 
 from mjendo import artifacts, cli, paths, scene, stats
 from mjendo.artifacts import PolicyError
-from mjendo.config import ConfigError
+from mjendo.config import POLICY_NAMES, ConfigError
 from mjendo.evaluation import cells, run_trials
-from mjendo.train_config import POLICY_NAMES
 from mjendo.train_config import load as load_config
 
 RESULTS_FILE = "study_trials.csv"

@@ -7,7 +7,8 @@ the wall. ``python -m mjendo.targets map`` measures, for candidate points spread
   quasi-static sweep of insertion x bending direction x bending magnitude;
 * the **reach with the wall**: the closest the tip comes in the static stomach (SE), over scripted
   insertions at fixed bending (the tube rides along the wall), seeded random exploration with contact
-  and a goal-conditioned pass (the damped-least-squares controller aimed at every point still unreached);
+  and two goal-conditioned passes (the damped-least-squares controller aimed at every point still
+  unreached, with 20 % and 40 % random actions);
 
 classifies every point (free: free-space distance < 3 mm; contact-aided: >= 10 mm and reached with the
 wall within 3 mm; between: 3-10 mm; out of reach: the rest) and draws the lists: F (the free points,
@@ -34,9 +35,9 @@ TARGETS_FILE = paths.STOMACH_DIR / "targets.json"
 FREE_MM = PAPER_SUCCESS_MM  # free: the tip reaches the point in free space (the success distance)
 CONTACT_AIDED_MM = 10.0  # contact-aided: free space misses it by this much or more
 MIN_CARDIA_MM = 35.0  # targets this close to the cardia are in the scope's blind start
-SPACING_MM = 6.0  # listed targets lie at least this far apart (no near-duplicates)
+SPACING_MM = 5.0  # listed targets lie at least this far apart (no near-duplicates)
 CONTACT_SHARE = 2 / 3  # of lists A and B: the paper's A reaches 26-34 % outside FE
-SPLIT = "ABABA"  # A 3/5, B 2/5: B holds 50 or more targets, enough to report success per target
+SPLIT = "AB"  # A and B alike: B holds 50 or more targets, enough to report success per target
 
 
 @dataclass
@@ -80,7 +81,9 @@ def load(version: int = CURRENT_VERSION, path: Path = TARGETS_FILE) -> TargetTab
 # --------------------------------------------------------------------------
 # Candidates and measurement.
 
-BARY_SAMPLES = np.array([[1 / 3, 1 / 3, 1 / 3], [2 / 3, 1 / 6, 1 / 6], [1 / 6, 2 / 3, 1 / 6], [1 / 6, 1 / 6, 2 / 3]])
+# Seven points per lumen triangle: centroid, towards each corner, towards each edge's midpoint.
+BARY_SAMPLES = np.array([[1 / 3, 1 / 3, 1 / 3], [2 / 3, 1 / 6, 1 / 6], [1 / 6, 2 / 3, 1 / 6], [1 / 6, 1 / 6, 2 / 3],
+                         [5 / 12, 5 / 12, 1 / 6], [1 / 6, 5 / 12, 5 / 12], [5 / 12, 1 / 6, 5 / 12]])
 
 
 def lumen_triangles(st: anatomy.Stomach) -> np.ndarray:
@@ -90,7 +93,7 @@ def lumen_triangles(st: anatomy.Stomach) -> np.ndarray:
 
 
 def candidates(st: anatomy.Stomach) -> tuple[np.ndarray, np.ndarray]:
-    """Candidate points: four per lumen triangle (centroid and towards each corner), away from the cardia."""
+    """Candidate points: seven per lumen triangle (BARY_SAMPLES), away from the cardia."""
     tris = lumen_triangles(st)
     t = np.repeat(tris, len(BARY_SAMPLES), axis=0)
     b = np.tile(BARY_SAMPLES, (len(tris), 1))
@@ -109,92 +112,125 @@ def _pulls(direction: float, magnitude: float) -> np.ndarray:
     return magnitude * np.array([c, -c, s, -s])
 
 
-def free_sweep(version: int, points: np.ndarray, progress: bool = True) -> np.ndarray:
-    """Closest approach (m) of the tip to each point in free space: insertion x direction x bending ramps."""
+def free_tips(version: int, progress: bool = True) -> np.ndarray:
+    """Tip positions (m) of the free-space sweep: insertion every 5 mm x 24 bending directions x a slow
+    (quasi-static) ramp of the bending from straight to full, with the stomach removed (FE)."""
     from tqdm import tqdm
 
     from mjendo.sim import Simulator
 
     sim = Simulator("FE", "fast", version=version)
-    lo, hi = sim.insertion_range
+    hi = sim.insertion_range[1]
     pull_max = float(sim.cable_pull_max[0])
     dt = sim.model.opt.timestep
     settle, ramp = max(1, int(round(0.3 / dt))), max(1, int(round(0.05 / dt)))
-    best = np.full(len(points), np.inf)
-    depths = np.arange(0.0, hi + 1e-9, from_mm(5.0))
-    for ins in tqdm(depths, desc="free-space sweep", disable=not progress):
+    tips = []
+    for ins in tqdm(np.arange(0.0, hi + 1e-9, from_mm(5.0)), desc="free-space sweep", disable=not progress):
         for direction in np.linspace(0, 2 * np.pi, 24, endpoint=False):
             sim.reset()
             sim.set_controls(np.zeros(4), ins)
             sim.step(settle)
-            for mag in np.linspace(0, pull_max, 25):  # slow ramp: quasi-static
+            for mag in np.linspace(0, pull_max, 25):
                 sim.set_controls(_pulls(direction, mag), ins)
                 sim.step(ramp)
-                _closest(best, sim.tip_pos(), points)
+                tips.append(sim.tip_pos())
+    return np.array(tips)
+
+
+def free_sweep(version: int, points: np.ndarray, progress: bool = True) -> np.ndarray:
+    """Closest approach (m) of the tip to each point in free space, over the sweep of :func:`free_tips`."""
+    best = np.full(len(points), np.inf)
+    for tip in free_tips(version, progress):
+        _closest(best, tip, points)
     return best
 
 
-def wall_reach(version: int, tris: np.ndarray, bary: np.ndarray, episodes: int, seed: int,
-               progress: bool = True) -> np.ndarray:
-    """Closest approach (m) of the tip to each point (moving with the wall) in SE, using contact."""
-    from tqdm import tqdm
+SCRIPTS = [(d, m) for d in np.linspace(0, 2 * np.pi, 12, endpoint=False) for m in (0.0, 0.15, 0.3, 0.4)]
+AIM_NOISE = (0.2, 0.4)  # share of random actions in the aimed passes: the second pass explores more
+N_STEPS = 128
 
+
+def _wall_job(args) -> np.ndarray:
+    """One worker's part of the wall-reach measurement: scripted, random or aimed episodes in SE."""
+    version, tris, bary, kind, items, seed = args
+    import torch
+
+    from mjendo.baseline import DLSController
     from mjendo.task import NavigationTask
 
+    torch.set_num_threads(1)
     ids = np.arange(len(tris))
     table = TargetTable(ids, tris, bary, {"A": ids.tolist()}, {})  # the candidates, before any list exists
     task = NavigationTask(env="SE", version=version, max_steps=10**6, randomize_phase=False, table=table)
     sim = task.sim
     best = np.full(len(tris), np.inf)
+    rng = np.random.default_rng(seed)
 
     def record() -> None:
         _closest(best, sim.tip_pos(), np.einsum("nk,nkd->nd", bary, sim.vertices()[tris]))
 
-    rng = np.random.default_rng(seed)
-    n_steps = 128
-    # Scripted: bend to a fixed direction and magnitude, then insert all the way (the tube rides the wall),
-    # then sweep the bending direction round at full depth.
-    scripts = [(d, m) for d in np.linspace(0, 2 * np.pi, 12, endpoint=False) for m in (0.0, 0.15, 0.3, 0.4)]
-    for direction, mag in tqdm(scripts, desc="scripted insertions", disable=not progress):
-        task.reset(rng)
-        bend = np.array([np.cos(direction), -np.cos(direction), np.sin(direction), -np.sin(direction)]) * mag
-        for k in range(n_steps):
-            a = np.concatenate([bend if k < 12 else np.zeros(4), [0.4 if k >= 12 else 0.0]])
-            res = task.step(a)
-            record()
-            if res.truncated:
-                break
-        for k in range(48):  # sweep round at depth
-            phi = direction + 2 * np.pi * k / 48
-            task.step(np.concatenate([0.4 * np.array([np.cos(phi), -np.cos(phi), np.sin(phi), -np.sin(phi)]), [0]]))
-            record()
-    for _ep in tqdm(range(episodes), desc="exploration with contact", disable=not progress):
-        task.reset(rng)
-        a = np.zeros(5)
-        for k in range(n_steps):
-            if k % 8 == 0:  # piecewise-constant actions explore further than white noise
-                a = rng.uniform(-0.4, 0.4, 5)
-                a[4] = rng.uniform(-0.1, 0.4)
-            res = task.step(a)
-            record()
-            if res.terminated and res.info["exited"]:
-                break
-    # Goal-conditioned: aim the (contact-blind) damped-least-squares controller at every point still
-    # unreached, with a fifth of its actions random; the wall guides the tube on the way.
-    from mjendo.baseline import DLSController
+    def ring(phi: float) -> np.ndarray:
+        return np.array([np.cos(phi), -np.cos(phi), np.sin(phi), -np.sin(phi)])
 
-    dls = DLSController(task)
-    for target in tqdm(np.flatnonzero(best >= from_mm(PAPER_SUCCESS_MM)), desc="aimed with contact",
-                       disable=not progress):
+    for item in items:
         task.reset(rng)
-        task.set_target(int(target))
-        dls.reset(task)
-        for _k in range(n_steps):
-            a = rng.uniform(-0.4, 0.4, 5) if rng.random() < 0.2 else dls.act(None, task)
-            res = task.step(a)
-            record()
-            if res.terminated:
-                break
+        if kind == "script":  # bend, then insert all the way (the tube rides the wall), then sweep round
+            direction, mag = item
+            for k in range(N_STEPS):
+                task.step(np.concatenate([ring(direction) * mag if k < 12 else np.zeros(4), [0.4 * (k >= 12)]]))
+                record()
+            for k in range(48):
+                task.step(np.concatenate([0.4 * ring(direction + 2 * np.pi * k / 48), [0.0]]))
+                record()
+        elif kind == "random":  # piecewise-constant random actions explore further than white noise
+            a = np.zeros(5)
+            for k in range(N_STEPS):
+                if k % 8 == 0:
+                    a = rng.uniform(-0.4, 0.4, 5)
+                    a[4] = rng.uniform(-0.1, 0.4)
+                res = task.step(a)
+                record()
+                if res.terminated and res.info["exited"]:
+                    break
+        else:  # aimed: the contact-blind DLS controller at one point, with a share of random actions
+            target, noise = item
+            task.set_target(int(target))
+            dls = DLSController(task)
+            dls.reset(task)
+            for _k in range(N_STEPS):
+                res = task.step(rng.uniform(-0.4, 0.4, 5) if rng.random() < noise else dls.act(None, task))
+                record()
+                if res.terminated:
+                    break
+    return best
+
+
+def wall_reach(version: int, tris: np.ndarray, bary: np.ndarray, episodes: int, seed: int,
+               progress: bool = True, workers: int = 2) -> np.ndarray:
+    """Closest approach (m) of the tip to each point (moving with the wall) in SE, using contact.
+
+    Scripted insertions and seeded random exploration first; then two goal-conditioned passes aim the
+    damped-least-squares controller at every point still unreached (the wall guides the tube on the way).
+    Work is spread over ``workers`` processes; the result does not depend on their number.
+    """
+    from multiprocessing import get_context
+
+    from tqdm import tqdm
+
+    best = np.full(len(tris), np.inf)
+    chunks = 16
+
+    def run(kind: str, items: list, phase: int) -> None:
+        jobs = [(version, tris, bary, kind, items[i::chunks], seed * 1000 + phase * 100 + i) for i in range(chunks)]
+        with get_context("spawn").Pool(workers) as pool:
+            for part in tqdm(pool.imap_unordered(_wall_job, jobs), total=len(jobs), desc=f"{kind} ({len(items)})",
+                             disable=not progress):
+                np.minimum(best, part, out=best)
+
+    run("script", SCRIPTS, 0)
+    run("random", list(range(episodes)), 1)
+    for phase, noise in enumerate(AIM_NOISE, start=2):
+        run("aimed", [(int(t), noise) for t in np.flatnonzero(best >= from_mm(PAPER_SUCCESS_MM))], phase)
     return best
 
 
@@ -274,6 +310,22 @@ def make_map(episodes: int, seed: int, progress: bool = True) -> dict:
     return {"version": CURRENT_VERSION, "info": info, "lists": lists, "points": points}
 
 
+def figure(out: Path, path: Path = TARGETS_FILE) -> Path:
+    """The free-space workspace of task versions 0 and 1 and the map's classes (docs/media/targets.png)."""
+    from mjendo import figures
+    from mjendo.task import free_targets
+
+    st = anatomy.load()
+    table = load(CURRENT_VERSION, path)
+    meta = json.loads(Path(path).read_text())
+    rest = free_targets("fast", CURRENT_VERSION)
+    points = np.einsum("nk,nkd->nd", table.bary, rest[table.tris])
+    classes = np.array([p["class"] for p in meta["points"]], dtype=object)
+    lists = {k: table.rows(v) for k, v in table.lists.items()}
+    spaces = {f"task version {v}": free_tips(v) for v in (0, CURRENT_VERSION)}
+    return figures.target_map(rest[st.mesh.inner], points, classes, lists, spaces, Path(out))
+
+
 def load_error(path: Path):
     raise ConfigError(f"{path} is missing; measure the map first with `python -m mjendo.targets map`")
 
@@ -286,12 +338,17 @@ def main(argv: list[str] | None = None) -> int:
     m.add_argument("--episodes", type=int, default=400, help="random exploration episodes with contact")
     m.add_argument("--seed", type=int, default=0)
     m.add_argument("--out", type=Path, default=TARGETS_FILE)
+    f = sub.add_parser("figure", help="free-space workspaces (versions 0 and 1) and the classified points")
+    f.add_argument("--out", type=Path, default=paths.DATA / "docs" / "media" / "targets.png")
     d = sub.add_parser("lists", help="draw lists F, A and B again from the map's measured classes (no simulation)")
     d.add_argument("--seed", type=int, default=0)
     d.add_argument("--out", type=Path, default=TARGETS_FILE)
     args = ap.parse_args(argv)
 
     def command() -> None:
+        if args.cmd == "figure":
+            print(f"wrote {figure(args.out)}")
+            return
         if args.cmd == "map":
             meta = make_map(args.episodes, args.seed)
         else:

@@ -20,9 +20,8 @@ from typing import Any
 
 import yaml
 
-from mjendo.config import CONDITIONS, FIDELITIES, ConfigError, TaskConfig, task_config
+from mjendo.config import CONDITIONS, FIDELITIES, POLICY_NAMES, ConfigError, TaskConfig, task_config
 
-POLICY_NAMES = ("A", "B", "C", "D", "E")  # paper: the five policies
 TASK_KEYS_SET_BY_POLICY = ("env", "fidelity", "force_obs")  # top-level fields of a policy entry
 
 

@@ -214,9 +214,10 @@ def test_a_shipped_policy_runs_over_many_worlds():
     from mjendo.batch import success_rate
     from mjendo.paths import policies_dir
 
-    r = success_rate(policies_dir() / "A", task_config(env="FE", force_obs=False, max_steps=80), 2, 2,
-                     device="cpu")
-    assert r["episodes"] == 2 and 0.0 <= r["success_rate"] <= 1.0 and np.isfinite(r["mean_final_mm"])
+    # Version 0's A reached its FE targets in 100 % of 200 CPU trials: over the worlds it must succeed too.
+    r = success_rate(policies_dir() / "v0" / "A", task_config(env="FE", force_obs=False, max_steps=80, version=0),
+                     2, 2, device="cpu")
+    assert r["episodes"] == 2 and r["success_rate"] >= 0.5 and np.isfinite(r["mean_final_mm"])
 
 
 @pytest.mark.slow

@@ -88,7 +88,7 @@ def test_a_run_folder_is_evaluated_like_a_shipped_policy(tmp_path):
     from mjendo.paths import policies_dir
 
     run = tmp_path / "runs" / "D" / "seed0"
-    shutil.copytree(policies_dir() / "D", run)
+    shutil.copytree(policies_dir() / "v0" / "D", run)  # a task-version-0 policy acts in version 0's task
     res = evaluate(trials=1, controllers=(str(run),), workers=1, out=tmp_path / "out", envs=("DE",))
     (row,) = res["rows"]
     assert row["controller"] == str(run) and row["error"] == "" and row["trials"] == 1

@@ -10,7 +10,9 @@ from mjendo.sim import Simulator
 from mjendo.task import NavigationTask
 
 # End-on into the greater curvature, and the bent tip driven into a side wall.
-HELD = [fidelity.PRESSES[1], fidelity.PRESSES[2]]
+# Presses the feeder holds at their depth. The end-on 155 mm press saturates the 3 N feeder of task version 1
+# (146 of 155 mm): under a force-limited push the tip slides on along the wall (full: 2.4 mm/s after 4 s).
+HELD = [fidelity.PRESSES[0], fidelity.PRESSES[2]]
 
 
 @pytest.mark.parametrize("fid", list(FIDELITIES))
@@ -29,7 +31,7 @@ def test_the_speed_benchmark_sweeps_the_scope_along_the_wall():
     sim = Simulator("DE", "fast")
     rate, counts = fidelity.sweep(sim, 1.0, record_counts=True)
     iters, contacts = counts.T
-    assert rate > 0 and len(iters) == 100
+    assert rate > 0 and len(iters) == round(1.0 / sim.model.opt.timestep)
     # Measured: the scope touches the wall in 80 % of the sweep's steps (6 contacts, median; the sweep
     # restarts from insertion 0, so it leaves the wall for a moment), with either solver.
     assert np.mean(contacts >= 2) >= 0.6 and np.median(contacts) >= 4

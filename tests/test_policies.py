@@ -3,6 +3,7 @@
 import json
 import pickle
 import shutil
+import warnings
 
 import numpy as np
 import pytest
@@ -15,14 +16,21 @@ from mjendo.policies import PolicyError, PPOController, force_obs_of, load_contr
 from mjendo.rollout import run
 
 TRAINED_IN = {"A": "FE", "B": "SE", "C": "SE", "D": "DE", "E": "DE"}  # paper: the five policies
+V0 = policies_dir() / "v0"  # the task-version-0 policies: always shipped, so these tests always run
+E0 = V0 / "E"
+# Every shipped policy folder: version 0's five, and the current version's as far as they are shipped.
+SHIPPED = [(0, V0 / p, p) for p in TRAINED_IN] + [(1, policies_dir() / p, p) for p in TRAINED_IN
+                                                   if (policies_dir() / p / artifacts.MODEL_FILE).exists()]
 
 
-@pytest.mark.parametrize("policy", list(TRAINED_IN))
-def test_every_shipped_policy_loads_and_reaches_a_target_in_its_environment(policy):
-    meta = artifacts.read_meta(policies_dir() / policy)
+@pytest.mark.parametrize("version,folder,policy", SHIPPED, ids=[f"v{v}-{p}" for v, _, p in SHIPPED])
+def test_every_shipped_policy_loads_and_reaches_a_target_in_its_environment(version, folder, policy):
+    meta = artifacts.read_meta(folder)
     assert meta["task"]["env"] == TRAINED_IN[policy] and meta["timesteps"] > 100_000
-    env = EndoscopeEnv(TRAINED_IN[policy], force_obs=force_obs_of(policy), max_steps=PAPER_EVAL_STEPS)
-    ctrl = load_controller(policy, env.task)
+    assert meta["mjendo_version"] and meta["scene_fingerprint"] and meta["commit"]  # provenance
+    env = EndoscopeEnv(TRAINED_IN[policy], force_obs=force_obs_of(str(folder)), max_steps=PAPER_EVAL_STEPS,
+                       version=version)
+    ctrl = load_controller(str(folder), env.task)
     assert ctrl.n_obs == (15 if policy in "CE" else 11)
     # Success must be possible: each shipped policy reaches >= 90 % in its own environment.
     outcomes = []
@@ -38,10 +46,9 @@ def test_every_shipped_policy_loads_and_reaches_a_target_in_its_environment(poli
 def test_normalize_is_sb3s_vecnormalize():
     from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
-    ctrl = PPOController.from_folder(policies_dir() / "E")
-    vn = VecNormalize.load(str(policies_dir() / "E" / artifacts.NORM_FILE),
-                           DummyVecEnv([lambda: EndoscopeEnv("DE")]))
-    env = EndoscopeEnv("DE")
+    ctrl = PPOController.from_folder(E0)
+    vn = VecNormalize.load(str(E0 / artifacts.NORM_FILE), DummyVecEnv([lambda: EndoscopeEnv("DE", version=0)]))
+    env = EndoscopeEnv("DE", version=0)
     obs, _ = env.reset(seed=1)
     for _ in range(5):
         np.testing.assert_allclose(ctrl.normalize(obs), vn.normalize_obs(obs), rtol=1e-6, atol=1e-6)
@@ -53,9 +60,9 @@ def test_normalize_is_sb3s_vecnormalize():
 def test_what_a_policy_observes_comes_from_its_own_folder(tmp_path, monkeypatch):
     # No training YAML is read: a policy folder alone says whether it wants contact and force.
     monkeypatch.setattr("mjendo.paths.TRAINING_CONFIG", tmp_path / "missing.yaml")
-    assert force_obs_of("E") and force_obs_of("C") and not force_obs_of("D") and not force_obs_of("A")
+    assert force_obs_of(str(V0 / "E")) and force_obs_of(str(V0 / "C")) and not force_obs_of(str(V0 / "D"))
     copy = tmp_path / "E_copy"
-    shutil.copytree(policies_dir() / "E", copy)
+    shutil.copytree(E0, copy)
     assert force_obs_of(str(copy)) and force_obs_of(str(copy / "model.zip"))
 
 
@@ -64,7 +71,7 @@ def policy_copy(tmp_path):
     d = tmp_path / "E"
     d.mkdir()
     for name in ("model.zip", "vecnormalize.pkl", "meta.json"):
-        shutil.copy2(policies_dir() / "E" / name, d / name)
+        shutil.copy2(E0 / name, d / name)
     return d
 
 
@@ -75,7 +82,7 @@ def test_normalisation_file_that_is_not_a_vecnormalize(policy_copy):
 
 
 def test_normalisation_file_of_another_policy(policy_copy):
-    shutil.copy2(policies_dir() / "B" / "vecnormalize.pkl", policy_copy / "vecnormalize.pkl")
+    shutil.copy2(V0 / "B" / "vecnormalize.pkl", policy_copy / "vecnormalize.pkl")
     with pytest.raises(PolicyError, match=r"normalises 11 observations but .*model.zip takes 15.*different runs"):
         artifacts.load(policy_copy)
 
@@ -105,7 +112,22 @@ def test_ship_copies_what_the_run_recorded(tmp_path, monkeypatch, policy_copy):
     (policy_copy / "meta.json").write_text(json.dumps(meta))
     dest = artifacts.ship(policy_copy, "E")
     assert json.loads((dest / "meta.json").read_text())["task"]["cable_mm_per_unit"] == 2.0
+    # Model, normalisation, meta and config only; the model without the optimizer's moments, and it loads.
+    assert {p.name for p in dest.iterdir()} <= {"config.yaml", "meta.json", "model.zip", "vecnormalize.pkl"}
+    assert artifacts.load(dest).model.policy is not None
     meta["timesteps"] = 0
     (policy_copy / "meta.json").write_text(json.dumps(meta))
     with pytest.raises(PolicyError, match="not a finished run"):
         artifacts.ship(policy_copy, "E")
+
+
+def test_a_policy_trained_in_other_scenes_warns_naming_both(policy_copy):
+    meta = json.loads((policy_copy / "meta.json").read_text())
+    now = meta["scene_fingerprint"]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        artifacts.load(policy_copy)  # the scenes it was trained in: no warning
+    meta["scene_fingerprint"] = "0123456789ab"
+    (policy_copy / "meta.json").write_text(json.dumps(meta))
+    with pytest.warns(RuntimeWarning, match=f"trained in scenes 0123456789ab, the installed scenes are {now}"):
+        artifacts.load(policy_copy)

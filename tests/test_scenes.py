@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from mjendo import scene
-from mjendo.config import CONDITIONS, FIDELITIES, ConfigError, Material, scene_config
+from mjendo.config import CONDITIONS, FIDELITIES, ConfigError, Material, fidelity_preset, scene_config
 from mjendo.sim import InstabilityError, Simulator
 
 SCENES = [("FE", "fast")] + [(e, f) for e in CONDITIONS if e != "FE" for f in FIDELITIES]
@@ -43,7 +43,7 @@ def test_one_scene_per_fidelity_plus_fe():
     amplitudes = {e: Simulator(e, "fast").f0 for e in ("SE", "DE", "UE1", "UE2")}
     assert amplitudes == {"SE": 0.0, "DE": 1.0, "UE1": 2.0, "UE2": 3.0}  # paper: 0, f0, 2 f0, 3 f0
     # The fast stomach drives its load with the gains calibrated per load level; full with f0 itself.
-    gains = FIDELITIES["fast"].load_gains
+    gains = fidelity_preset("fast").load_gains  # the current task version's calibration
     driven = [Simulator(e, "fast").load_amplitude for e in ("DE", "UE1", "UE2")]
     assert driven == pytest.approx([gains[0], 2 * gains[1], 3 * gains[2]])
     assert [Simulator(e, "full").load_amplitude for e in ("DE", "UE1", "UE2")] == [1.0, 2.0, 3.0]
@@ -97,4 +97,7 @@ def test_scene_files_have_the_paper_contact_settings():
     # (MuJoCo ignores gap for flex contacts: docs/physics.md "Contact").
     assert m.flex_margin[0] == pytest.approx(0.0005) and m.flex_gap[0] == 0.0
     assert m.flex_friction[0, 0] == pytest.approx(0.1)
-    assert m.opt.gravity[2] == pytest.approx(-9.8)
+    # Left lateral decubitus (task version 1): gravity towards the greater curvature, -x; version 0 upright.
+    np.testing.assert_allclose(m.opt.gravity, [-9.8, 0, 0])
+    v0 = mujoco.MjModel.from_xml_path(str(scene.scene_path("DE", "fast", version=0)))
+    np.testing.assert_allclose(v0.opt.gravity, [0, 0, -9.8])

@@ -8,10 +8,13 @@ import sys
 import numpy as np
 import pytest
 
+import mjendo
+from mjendo import artifacts
 from mjendo.config import ConfigError
 from mjendo.envs import EndoscopeEnv
 from mjendo.paths import TRAINING_CONFIG
 from mjendo.policies import PolicyError, PPOController, load_controller
+from mjendo.scene import fingerprint
 from mjendo.task import NavigationTask
 from mjendo.train import latest_checkpoint, load_config, train
 
@@ -84,14 +87,31 @@ def test_short_training_writes_a_loadable_policy(short_run):
         ctrl.check(EndoscopeEnv("DE", force_obs=True).task)
     # The run records the task it trained in and what its inputs mean; a task with other scales is refused.
     meta = json.loads((run / "meta.json").read_text())
-    assert {k: meta["task"][k] for k in ("env", "force_obs", "control_period_s", "cable_mm_per_unit",
+    assert {k: meta["task"][k] for k in ("env", "force_obs", "version", "control_period_s", "cable_mm_per_unit",
                                          "insertion_mm_per_unit")} == {
-        "env": "DE", "force_obs": False, "control_period_s": 0.03, "cable_mm_per_unit": 2.5,
-        "insertion_mm_per_unit": 10.0}
+        "env": "DE", "force_obs": False, "version": 1, "control_period_s": 0.1, "cable_mm_per_unit": 1.0,
+        "insertion_mm_per_unit": 6.25}
+    # Provenance: the code, the scenes and the command as typed (not an interpreter's path).
+    assert meta["mjendo_version"] == mjendo.__version__ and meta["scene_fingerprint"] == fingerprint("fast")
+    assert meta["commit"] is None or len(meta["commit"].split("+")[0]) == 40
+    assert meta["command"].startswith("python -m mjendo.train")
     assert [b["name"] for b in meta["observation"]] == ["ee_to_target", "ee_velocity", "cable_lengths",
                                                         "previous_axial_action"]
-    with pytest.raises(PolicyError, match="insertion_mm_per_unit 10.0 \\(task: 5.0\\)"):
+    with pytest.raises(PolicyError, match="insertion_mm_per_unit 6.25 \\(task: 5.0\\)"):
         ctrl.check(NavigationTask(env="DE", force_obs=False, insertion_mm_per_unit=5.0))
+    with pytest.raises(PolicyError, match="trained in task version 1, the task is version 0"):
+        ctrl.check(NavigationTask(env="DE", force_obs=False, version=0))
+
+
+def test_shipping_keeps_the_policy_and_drops_the_optimizer(short_run, tmp_path):
+    run, _ = short_run
+    dest = artifacts.ship(run, "D", tmp_path / "D")
+    assert {p.name for p in dest.iterdir()} == {"config.yaml", "meta.json", "model.zip", "vecnormalize.pkl"}
+    assert (dest / "model.zip").stat().st_size < 0.6 * (run / "model.zip").stat().st_size
+    env = EndoscopeEnv("DE", force_obs=False)
+    obs, _ = env.reset(seed=0)
+    np.testing.assert_array_equal(PPOController.from_folder(dest).act(obs, env.task),
+                                  PPOController.from_folder(run).act(obs, env.task))
 
 
 def test_resume_continues_the_step_count(short_run):

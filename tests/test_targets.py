@@ -1,0 +1,78 @@
+"""The reachability map and the target lists: classes follow the rule, and free space really misses them."""
+
+import json
+
+import numpy as np
+import pytest
+from scipy.optimize import minimize
+
+from mjendo import targets
+from mjendo.config import CURRENT_VERSION
+from mjendo.sim import Simulator
+from mjendo.task import NavigationTask, free_targets
+
+MAP = targets.load()
+POINTS = {p["id"]: p for p in json.loads(targets.TARGETS_FILE.read_text())["points"]}
+
+
+def test_classes_follow_the_rule_and_lists_are_drawn_from_them():
+    for p in POINTS.values():
+        free, wall = p["free_mm"], p["wall_mm"]
+        expected = ("free" if free < 3 else "between" if free < 10 else
+                    "contact_aided" if wall < 3 else "out_of_reach")
+        assert p["class"] == expected, p
+    a, b, f = (set(MAP.lists[k]) for k in "ABF")
+    assert not (a & b) and len(b) >= 50 and len(a) >= len(b)
+    assert all(POINTS[i]["class"] in ("free", "contact_aided") for i in a | b)
+    assert all(POINTS[i]["class"] == "free" for i in f)
+    for name in "AB":  # at least 60 % of each list needs the wall (free-space distance >= 10 mm)
+        share = np.mean([POINTS[i]["free_mm"] >= 10 for i in MAP.lists[name]])
+        assert share >= 0.6, (name, share)
+
+
+def test_listed_targets_are_on_the_lumen_and_move_with_the_wall():
+    task = NavigationTask(env="DE", randomize_phase=False)
+    start = task.list_positions()
+    task.sim.set_controls(np.zeros(4), task.sim.insertion_range[0])
+    task.sim.step(int(round(2.5 / task.sim.model.opt.timestep)))  # past a load switch
+    moved = np.linalg.norm(task.list_positions() - start, axis=1) * 1e3
+    assert np.median(moved) > 0.5
+    st = task.stomach
+    assert st.mesh.inner[task.target_tri].all() and np.allclose(task.target_bary.sum(1), 1.0)
+
+
+class FreeSpace:
+    """The tip's settled position in free space for (insertion, bending direction, bending magnitude)."""
+
+    def __init__(self):
+        self.sim = Simulator("FE", version=CURRENT_VERSION)
+        self.pull_max = float(self.sim.cable_pull_max[0])
+        self.steps = int(round(0.5 / self.sim.model.opt.timestep))
+
+    def tip(self, x: np.ndarray) -> np.ndarray:
+        ins = float(np.clip(x[0], 0.0, self.sim.insertion_range[1]))
+        mag = float(np.clip(x[2], 0.0, 1.0)) * self.pull_max
+        self.sim.reset()
+        self.sim.set_controls(targets._pulls(x[1], mag), ins)
+        self.sim.step(self.steps)
+        return self.sim.tip_pos()
+
+
+@pytest.mark.parametrize("name", ["A", "B"])
+def test_contact_aided_targets_are_out_of_free_space_reach_by_an_independent_search(name):
+    # Not the map's sweep: a coarse grid then Nelder-Mead over insertion, direction and magnitude, settling
+    # from straight for every pose. It must not bring the tip within 10 mm of any contact-aided target
+    # (a 1 mm allowance for the two searches' different paths into the same pose).
+    space = FreeSpace()
+    rest = free_targets("fast", CURRENT_VERSION)
+    aided = [i for i in MAP.lists[name] if POINTS[i]["class"] == "contact_aided"]
+    pts = MAP.positions(rest, aided)
+    grid = [np.array([q, d, m]) for q in np.linspace(0, 0.16, 5) for d in np.linspace(0, 2 * np.pi, 8,
+                                                                                         endpoint=False)
+            for m in (0.0, 0.5, 1.0)]
+    tips = np.array([space.tip(x) for x in grid])
+    for i, p in zip(aided, pts, strict=True):
+        x0 = grid[int(np.argmin(np.linalg.norm(tips - p, axis=1)))]
+        res = minimize(lambda x, p=p: np.linalg.norm(space.tip(x) - p), x0, method="Nelder-Mead",
+                       options={"maxfev": 40, "initial_simplex": np.vstack([x0, x0 + np.diag([0.01, 0.4, 0.2])])})
+        assert res.fun * 1e3 >= 9.0, (i, res.fun * 1e3, POINTS[i]["free_mm"])

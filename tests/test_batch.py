@@ -5,12 +5,12 @@ step-by-step agreement is asserted before contact; with contact, quantities that
 are compared (docs/backends.md).
 """
 
-
 import mujoco
 import numpy as np
 import pytest
 
 pytest.importorskip("mujoco_warp", reason="the batched backend needs the optional extra mjendo[warp]")
+pytestmark = pytest.mark.integration  # MuJoCo Warp on its CPU device: kernels compile on first use
 
 from mjendo.batch import BatchedNavigation, uniform, vec_env  # noqa: E402
 from mjendo.config import ConfigError, task_config  # noqa: E402

@@ -26,6 +26,7 @@ EPISODE = textwrap.dedent("""
 """)
 
 
+@pytest.mark.integration
 def test_wheel_installs_into_a_fresh_venv_and_runs_policy_e(tmp_path):
     # Build from a copy of the sources: setuptools leaves a build/ folder in the tree it builds.
     import shutil

@@ -54,6 +54,7 @@ def tiny_config(tmp_path_factory):
     return path
 
 
+@pytest.mark.integration
 def test_a_tiny_grid_runs_on_ray_and_reports_intervals(tiny_config, tmp_path, monkeypatch):
     import ray
 
@@ -100,6 +101,7 @@ def test_a_tiny_grid_runs_on_ray_and_reports_intervals(tiny_config, tmp_path, mo
     assert _read_results(tmp_path / "runs" / "D" / "seed1", cfg) is None
 
 
+@pytest.mark.integration
 def test_a_killed_trial_resumes_to_the_same_step_count(tiny_config, tmp_path):
     import json
 
@@ -122,6 +124,7 @@ def test_a_killed_trial_resumes_to_the_same_step_count(tiny_config, tmp_path):
     assert steps[0] == steps[1] == 1024
 
 
+@pytest.mark.integration
 def test_an_unreachable_cluster_address_is_a_clear_error(tmp_path):
     from mjendo.study import StudyConfig, connect
 

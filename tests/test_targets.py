@@ -16,8 +16,13 @@ POINTS = {p["id"]: p for p in json.loads(targets.TARGETS_FILE.read_text())["poin
 
 
 def test_classes_follow_the_rule_and_lists_are_drawn_from_them():
+    def near(x, edge):  # the file keeps two decimals: a value rounded onto a boundary may be either side
+        return abs(x - edge) <= 0.005
+
     for p in POINTS.values():
         free, wall = p["free_mm"], p["wall_mm"]
+        if near(free, 3) or near(free, 10) or near(wall, 3):
+            continue
         expected = ("free" if free < 3 else "between" if free < 10 else
                     "contact_aided" if wall < 3 else "out_of_reach")
         assert p["class"] == expected, p
@@ -34,9 +39,11 @@ def test_listed_targets_are_on_the_lumen_and_move_with_the_wall():
     task = NavigationTask(env="DE", randomize_phase=False)
     start = task.list_positions()
     task.sim.set_controls(np.zeros(4), task.sim.insertion_range[0])
-    task.sim.step(int(round(2.5 / task.sim.model.opt.timestep)))  # past a load switch
-    moved = np.linalg.norm(task.list_positions() - start, axis=1) * 1e3
-    assert np.median(moved) > 0.5
+    moved = np.zeros(len(start))
+    for _ in range(8):  # one 4 s load cycle, both of its switches
+        task.sim.step(int(round(0.5 / task.sim.model.opt.timestep)))
+        moved = np.maximum(moved, np.linalg.norm(task.list_positions() - start, axis=1) * 1e3)
+    assert np.median(moved) > 2.0  # measured: 3.4 mm between the two load states
     st = task.stomach
     assert st.mesh.inner[task.target_tri].all() and np.allclose(task.target_bary.sum(1), 1.0)
 

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import json
 import math
 import os
 import subprocess
@@ -233,6 +234,22 @@ def summarize(trials: list[Trial]) -> list[dict]:
     return rows
 
 
+def per_target(trials: list[Trial]) -> list[dict]:
+    """Success per cell and target, with the target's class in the reachability map (version 1 targets)."""
+    from mjendo import targets
+
+    try:
+        classes = {p["id"]: p["class"] for p in json.loads(targets.TARGETS_FILE.read_text())["points"]}
+    except OSError:
+        classes = {}
+    groups: dict[tuple, list[Trial]] = {}
+    for t in trials:
+        groups.setdefault((t.controller, t.env, t.target), []).append(t)
+    return [{"controller": c, "env": e, "target": k, "class": classes.get(k, ""), "trials": len(ts),
+             "successes": sum(t.success for t in ts), "mean_final_mm": float(np.mean([t.final_mm for t in ts]))}
+            for (c, e, k), ts in groups.items()]
+
+
 def _fmt(x, nd=1):
     return "-" if x is None or (isinstance(x, float) and math.isnan(x)) else f"{x:.{nd}f}"
 
@@ -274,6 +291,20 @@ def write_report(rows: list[dict], out: Path, command: str, wall_s: float, n: in
             f"{_fmt(r['sr_ci_high'], 0)}) | {_fmt(r['paper_sr'])} | {_fmt(r['ae_success_mm'], 2)} | "
             f"{_fmt(r['paper_ae'])} | {_fmt(r['ae_all_mm'], 1)} | {_fmt(r['mean_force_n'], 2)} | "
             f"{_fmt(r['peak_force_n'], 2)} | {_fmt(r['steps_to_success'], 1)} | {r['exits']} |")
+    lines += ["", "## Contact reliance, safety and the moving wall", "",
+              "Per trial, averaged over the cell: share of steps in contact; contact force at the last step of "
+              "successful trials; share of steps above 1 N and above 2 N (CathSim's safety measure); median over "
+              "trials of how far the target moved from its place at the trial's start, and of the trial's "
+              "duration (simulated).", "",
+              "| policy | env | in contact % | force at success N | > 1 N % | > 2 N % | target motion mm | "
+              "duration s |", "|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        if not r["error"]:
+            lines.append(
+                f"| {r['controller']} | {r['env']} | {_fmt(100 * r['contact_share'])} | "
+                f"{_fmt(r['force_at_success_n'], 2)} | {_fmt(100 * r['over_1n_share'], 2)} | "
+                f"{_fmt(100 * r['over_2n_share'], 2)} | {_fmt(r['median_target_motion_mm'], 2)} | "
+                f"{_fmt(r['median_duration_s'], 1)} |")
     if made:
         lines += ["", "## Figures", ""]
         for fig, text in made:
@@ -322,6 +353,7 @@ def evaluate(trials: int = 200, controllers=CONTROLLERS, workers: int = 2, out: 
     _write_csv(out / "trials.csv", [asdict(t) for t in all_trials])
     rows = summarize(all_trials)
     _write_csv(out / "summary.csv", rows)
+    _write_csv(out / "per_target.csv", per_target(all_trials))
     from mjendo import figures
 
     made = figures.all_figures(rows, tip_paths, out)

@@ -82,3 +82,15 @@ def test_ids_are_registered_whichever_is_imported_first():
 def test_command_line_tools_start_without_warnings(args):
     res = subprocess.run([sys.executable, "-W", "default", "-m", *args], capture_output=True, text=True, cwd=ROOT)
     assert res.returncode == 0 and "Warning" not in res.stderr, res.stderr
+
+
+def test_the_tracked_tree_holds_code_models_and_results_not_runs():
+    files = subprocess.run(["git", "ls-files", "-z"], cwd=ROOT, capture_output=True, text=True, check=True)
+    paths = [ROOT / f for f in files.stdout.split("\0") if f]
+    if not paths:
+        pytest.skip("not a git checkout")
+    sizes = {p.relative_to(ROOT).as_posix(): p.stat().st_size for p in paths if p.exists()}
+    assert not [p for p in sizes if p.startswith("runs/")]  # training runs stay out of git
+    assert sum(sizes.values()) < 25e6
+    big = [p for p, n in sizes.items() if n > 2e6 and not (p.startswith("docs/media/") and p.endswith(".mp4"))]
+    assert not big, big

@@ -148,3 +148,20 @@ def test_each_stomach_keeps_its_own_study_cache():
     assert per_stomach(RESULTS_FILE, "fast") == "study_trials.csv"
     names = {per_stomach(f, fid) for f in (RESULTS_FILE, VALIDATION_FILE) for fid in ("fast", "full")}
     assert len(names) == 4 and "study_trials_full.csv" in names
+
+
+def test_comparisons_resample_seeds_and_targets():
+    from mjendo import study
+
+    rng = np.random.default_rng(0)
+
+    def rows(p_success):  # 3 seeds x 10 targets x 2 trials
+        return {s: [{"success": str(bool(rng.random() < p_success(k))), "target": k} for k in range(10)
+                    for _ in range(2)] for s in range(3)}
+
+    always, never = rows(lambda k: 1.0), rows(lambda k: 0.0)
+    assert study._over_targets(always, never, rng) == (100.0, 100.0)
+    # Success that depends on the target only: the seeds agree, the targets carry all the spread.
+    half = rows(lambda k: float(k < 5))
+    lo, hi = study._over_targets(half, never, rng)
+    assert 15 < lo < 50 < hi < 85

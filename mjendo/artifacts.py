@@ -168,8 +168,8 @@ def load(directory: Path) -> Policy:
     directory = Path(directory)
     path = directory / MODEL_FILE
     if not path.exists():
-        raise PolicyError(f"no policy file at {path}: train one with `make train POLICY=...` or pass a folder "
-                          "holding model.zip")
+        raise PolicyError(f"no policy file at {path}: train one with `make train POLICY=...`, pass a folder "
+                          "holding model.zip, or use task version 0's shipped ones (models/policies/v0/<P>)")
     meta = read_meta(directory)
     try:
         model = PPO.load(str(path), device="cpu")

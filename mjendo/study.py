@@ -37,7 +37,7 @@ import numpy as np
 from mjendo import artifacts, cli, paths, scene, stats
 from mjendo.artifacts import PolicyError
 from mjendo.config import POLICY_NAMES, ConfigError
-from mjendo.evaluation import cells, run_trials
+from mjendo.evaluation import EVAL_SEED_BASE, cells, run_trials
 from mjendo.train_config import load as load_config
 
 RESULTS_FILE = "study_trials.csv"
@@ -54,7 +54,7 @@ def per_stomach(name: str, fidelity: str) -> str:
 
 
 # Validation (choosing the seed to ship): trials in the policy's own training condition on seeds of their
-# own, disjoint from the evaluation trials (0..N-1) and from training's periodic evaluations (10,000,000+).
+# own, disjoint from the evaluation trials (30,000,000+) and from training's periodic evaluations (10,000,000+).
 VALIDATION_SEED = 20_000_000
 VALIDATION_TRIALS = 100
 RUNNING_MARK = ".study_running"
@@ -136,7 +136,7 @@ def adopt_shipped(cfg: StudyConfig, policy: str, seed: int) -> bool:
 
 def eval_seeds(cfg: StudyConfig) -> list[int]:
     """The evaluation study's trial seeds (mjendo.evaluation, seed 0): never used for training or tuning."""
-    return [i for i in range(cfg.trials)]
+    return [EVAL_SEED_BASE + i for i in range(cfg.trials)]
 
 
 def _read_results(run: Path, cfg: StudyConfig) -> list[dict] | None:

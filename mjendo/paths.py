@@ -2,7 +2,7 @@
 
 The committed data lives at the top of the checkout (``models/``,
 ``train/policies.yaml``); a wheel carries the same files as
-``mjendo/_data/`` (setup.py). Everything that reads or writes them asks
+``mjendo/_data/`` (pyproject.toml maps them). Everything that reads or writes them asks
 this module, so an installed mjendo finds its scenes, stomach, targets and
 shipped policies wherever it is run from. Outputs (runs, evaluations) go
 under the checkout when there is one, else under the working directory.

@@ -20,9 +20,9 @@ import time
 
 import numpy as np
 
-from mjendo.config import CURRENT_VERSION, VERSIONS
+from mjendo.config import CONDITIONS, CURRENT_VERSION, FIDELITIES, VERSIONS
 
-SCENES = [("FE", "fast")] + [(e, f) for f in ("fast", "full") for e in ("SE", "DE", "UE1", "UE2")]
+SCENES = [("FE", "fast")] + [(e, f) for f in FIDELITIES for e in CONDITIONS if CONDITIONS[e].has_stomach]
 
 
 def physics_figure(env: str, fidelity: str, repeats: int, seconds: float) -> dict:

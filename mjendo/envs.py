@@ -9,7 +9,7 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 
-from mjendo.config import ACTION_SIZE, PAPER_ACTION_LIMIT, ConfigError, task_config
+from mjendo.config import ACTION_SIZE, PAPER_ACTION_LIMIT, ConfigError, TaskConfig, task_config
 from mjendo.endoscope import TIP_CAMERA
 from mjendo.task import NavigationTask
 
@@ -100,10 +100,12 @@ class EndoscopeEnv(gym.Env):
     metadata = {"render_modes": ["rgb_array"], "render_fps": 40}
     MAX_FRAME_PIXELS = 4096  # MuJoCo's offscreen buffer is enlarged to the frame; beyond this GPUs refuse
 
-    def __init__(self, env: str = "DE", force_obs: bool = True, fidelity: str = "fast",
-                 target_list: str | None = None, max_steps: int = 128, force_penalty: float = 0.0,
+    # Task defaults come from TaskConfig (one place); the rendering arguments are the env's own.
+    def __init__(self, env: str = TaskConfig.env, force_obs: bool = TaskConfig.force_obs,
+                 fidelity: str = TaskConfig.fidelity, target_list: str | None = TaskConfig.target_list,
+                 max_steps: int = TaskConfig.max_steps, force_penalty: float = TaskConfig.force_penalty,
                  render_mode: str | None = None, camera: str = "external", width: int = 480,
-                 height: int = 360, randomize_phase: bool = True, **task):
+                 height: int = 360, randomize_phase: bool = TaskConfig.randomize_phase, **task):
         if render_mode not in (None, "rgb_array"):
             raise ConfigError(f"unknown render_mode {render_mode!r}; valid: None, 'rgb_array'")
         if camera not in (*CAMERAS, "both"):

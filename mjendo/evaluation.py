@@ -28,7 +28,9 @@ import numpy as np
 from mjendo import cli, paths, rollout
 from mjendo.artifacts import PolicyError
 from mjendo.config import (
+    CONDITIONS,
     CURRENT_VERSION,
+    FIDELITIES,
     PAPER_EVAL_STEPS,
     PAPER_RESULTS,
     PAPER_SUCCESS_MM,
@@ -65,7 +67,7 @@ def cells(controllers=CONTROLLERS) -> list[tuple[str, str]]:
     out = []
     for c in controllers:
         out += [(c, "FE")] if _trained_in_fe(c) else []
-        out += [(c, e) for e in ("SE", "DE", "UE1", "UE2")]
+        out += [(c, e) for e in CONDITIONS if CONDITIONS[e].has_stomach]
     return out
 
 
@@ -372,7 +374,7 @@ def main(argv: list[str] | None = None) -> int:
                     help="comma-separated: A-E (shipped), baseline, or policy/run folders (runs/E/seed0)")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--fidelity", choices=["fast", "full"], default="fast", help="stomach to evaluate in")
+    ap.add_argument("--fidelity", choices=list(FIDELITIES), default="fast", help="stomach to evaluate in")
     ap.add_argument("--envs", help="comma-separated subset of FE, SE, DE, UE1, UE2 (default: all of the study)")
     ap.add_argument("--out", type=Path, help="results folder (default runs/eval/<fidelity>, untracked; the "
                     "committed study is eval/results)")

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from mjendo.config import CONDITIONS
 from mjendo.units import to_mm
 
 MIN_RUNS_FOR_SMOOTH_MEAN = 20  # below this a spline through the mean says more than the runs do
@@ -147,7 +148,7 @@ def success_bars(rows: list[dict], out: Path) -> Path:
     from matplotlib.patches import Patch
 
     plt = _plt()
-    envs = ["FE", "SE", "DE", "UE1", "UE2"]
+    envs = list(CONDITIONS)
     ctrls = list(dict.fromkeys(r["controller"] for r in rows))
     fig, ax = plt.subplots(figsize=(12, 4.2))
     w = 0.8 / max(len(ctrls), 1)
@@ -181,7 +182,7 @@ def success_bars(rows: list[dict], out: Path) -> Path:
 def study_seeds(summary: list[dict], out: Path) -> Path:
     """One panel per environment: every seed's success rate (dots) and the across-seed mean with its interval."""
     plt = _plt()
-    envs = [e for e in ("FE", "SE", "DE", "UE1", "UE2") if any(r["env"] == e for r in summary)]
+    envs = [e for e in CONDITIONS if any(r["env"] == e for r in summary)]
     policies = list(dict.fromkeys(r["policy"] for r in summary))
     fig, axes = plt.subplots(1, len(envs), figsize=(2.6 * len(envs) + 1, 3.6), sharey=True, squeeze=False)
     for ax, env in zip(axes[0], envs, strict=True):

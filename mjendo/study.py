@@ -36,7 +36,7 @@ import numpy as np
 
 from mjendo import artifacts, cli, paths, scene, stats
 from mjendo.artifacts import PolicyError
-from mjendo.config import POLICY_NAMES, ConfigError
+from mjendo.config import CONDITIONS, FIDELITIES, POLICY_NAMES, ConfigError
 from mjendo.evaluation import EVAL_SEED_BASE, cells, run_trials
 from mjendo.train_config import load as load_config
 
@@ -333,7 +333,7 @@ def analyse(rows: list[dict]) -> tuple[list[dict], list[dict], dict]:
         })
     comparisons = []
     for a, b in COMPARISONS:
-        for env in ("FE", "SE", "DE", "UE1", "UE2"):
+        for env in CONDITIONS:
             if (a, env) in estimates and (b, env) in estimates:
                 d = stats.difference(estimates[a, env], estimates[b, env])
                 lo, hi = _over_targets(per_cell[a, env], per_cell[b, env], rng)
@@ -459,7 +459,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seeds", type=_ints, default=(0, 1, 2), help="comma-separated training seeds (default 0,1,2)")
     ap.add_argument("--timesteps", type=int, help="training budget per run (default: the config's)")
     ap.add_argument("--trials", type=int, default=200, help="evaluation trials per environment and seed")
-    ap.add_argument("--fidelity", choices=["fast", "full"], default="fast", help="stomach to evaluate in")
+    ap.add_argument("--fidelity", choices=list(FIDELITIES), default="fast", help="stomach to evaluate in")
     ap.add_argument("--envs", help="comma-separated subset of FE, SE, DE, UE1, UE2")
     ap.add_argument("--config", type=Path, default=paths.TRAINING_CONFIG, help="training config")
     ap.add_argument("--runs", type=Path, default=paths.RUNS, help="run folders (shared storage on a cluster)")

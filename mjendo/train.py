@@ -27,7 +27,7 @@ import yaml
 
 from mjendo import artifacts, cli, paths
 from mjendo.artifacts import MODEL_FILE, NORM_FILE, PolicyError
-from mjendo.config import PAPER_EVAL_STEPS, ConfigError
+from mjendo.config import FIDELITIES, PAPER_EVAL_STEPS, ConfigError
 from mjendo.train_config import TrainConfig, from_dict
 from mjendo.train_config import load as load_config
 
@@ -380,7 +380,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--fresh", action="store_true", help="discard an existing run instead of resuming")
     ap.add_argument("--ship", action="store_true", help="copy the finished policy to models/policies/")
     ap.add_argument("--config", type=Path, help="training config (default train/policies.yaml)")
-    ap.add_argument("--fidelity", choices=["fast", "full"], help="stomach to train in (default: the config's)")
+    ap.add_argument("--fidelity", choices=list(FIDELITIES), help="stomach to train in (default: the config's)")
     ap.add_argument("--init-from", type=Path, metavar="POLICY_DIR",
                     help="fine-tune a trained policy (e.g. models/policies/E) with the config's finetune block")
     ap.add_argument("--learning-rate", type=float)

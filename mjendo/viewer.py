@@ -22,7 +22,7 @@ import numpy as np
 
 import mjendo  # noqa: F401  (chooses the GL backend first)
 from mjendo import cli, rollout
-from mjendo.config import CURRENT_VERSION, ConfigError
+from mjendo.config import CURRENT_VERSION, FIDELITIES, ConfigError
 from mjendo.endoscope import TIP_CAMERA
 from mjendo.envs import EndoscopeEnv
 from mjendo.gl import NO_GL_HELP, NoOpenGLError
@@ -281,7 +281,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--fps", type=int, default=30)
     ap.add_argument("--steps", type=int, default=80, help="steps per episode (paper's trials: 80)")
     ap.add_argument("--target", type=int, help="a target vertex index from the env's list")
-    ap.add_argument("--fidelity", choices=["fast", "full"], default="fast", help="stomach to show")
+    ap.add_argument("--fidelity", choices=list(FIDELITIES), default="fast", help="stomach to show")
     a = ap.parse_args(argv)
     if a.headless and not a.record:
         ap.error("--headless needs --record out.mp4")

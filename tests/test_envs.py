@@ -143,9 +143,10 @@ def test_force_blind_observation_is_the_aware_one_without_force():
     ob, _ = blind.reset(seed=0)
     oa, _ = aware.reset(seed=0)
     np.testing.assert_array_equal(ob, oa[:11])
-    for _ in range(70):  # push straight in until the wall resists
-        ob, _, _, _, ib = blind.step(np.array([0, 0, 0, 0, 0.4]))
-        oa, _, _, _, ia = aware.step(np.array([0, 0, 0, 0, 0.4]))
+    for _ in range(70):  # push straight in until the wall resists (an episode that ended is not stepped on)
+        ob, _, tb, _, ib = blind.step(np.array([0, 0, 0, 0, 0.4]))
+        oa, _, ta, _, ia = aware.step(np.array([0, 0, 0, 0, 0.4]))
+        assert not (tb or ta), "the episode ended before the scope reached the wall"
         np.testing.assert_array_equal(ob, oa[:11])
         assert ib["contact"] == ia["contact"]
         if ia["contact"] and np.linalg.norm(ia["force_N"]) > 0.05:
@@ -292,7 +293,8 @@ def test_force_penalty_costs_reward_in_proportion_to_the_force():
         env = EndoscopeEnv("SE", force_penalty=penalty)
         env.reset(seed=0)
         for _ in range(60):
-            _, r, _, _, info = env.step(np.array([0, 0, 0, 0, 0.4]))
+            _, r, term, _, info = env.step(np.array([0, 0, 0, 0, 0.4]))
+            assert not term, "the episode ended before the scope pressed the wall"
             if np.linalg.norm(info["force_N"]) > 0.2:
                 return r, info
         raise AssertionError("never pressed the wall")
@@ -343,7 +345,7 @@ BAD_TASK_ARGS = [
     ({"max_steps": 0}, "max_steps must be a whole number >= 1"),
     ({"width": 0}, "width must be a whole number of pixels"),
     ({"height": 100000}, "height must be a whole number of pixels"),
-    ({"control_period_s": 0.025}, "not a multiple"),
+    ({"control_period_s": 0.03}, "not a multiple of the fast timestep 0.0125 s; use e.g. 0.025"),
     ({"version": 7}, "unknown task version 7"),
     ({"target_list": "C"}, "unknown target_list 'C'"),
     ({"cable_mm": 2.0}, "unknown task argument"),

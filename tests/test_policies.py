@@ -32,15 +32,15 @@ def test_every_shipped_policy_loads_and_reaches_a_target_in_its_environment(vers
                        version=version)
     ctrl = load_controller(str(folder), env.task)
     assert ctrl.n_obs == (15 if policy in "CE" else 11)
-    # Success must be possible: each shipped policy reaches >= 90 % in its own environment.
+    # Each shipped policy reaches 90 % or more of its own environment's targets in the evaluation; on six
+    # trials it never used it must succeed at least four times (at 90 %, 1.6 % of six-trial draws fail).
     outcomes = []
     for seed in range(900, 906):  # seeds the evaluation study never uses
         info, _ = run(env, ctrl, seed=seed)
         outcomes.append(info["is_success"])
         if info["is_success"]:
             assert info["distance_mm"] < 3.0 and info["step"] <= PAPER_EVAL_STEPS
-            break
-    assert any(outcomes), f"policy {policy} reached no target in {len(outcomes)} episodes"
+    assert sum(outcomes) >= 4, f"policy {policy} reached {sum(outcomes)} of 6 targets"
 
 
 def test_normalize_is_sb3s_vecnormalize():

@@ -50,7 +50,9 @@ def test_fine_tuning_starts_from_the_policy_and_counts_its_own_steps(short_run, 
     before, after = (PPO.load(str(d / "model.zip"), device="cpu").policy.state_dict() for d in (src, run))
     changed = [k for k in before if not torch.equal(before[k], after[k])]
     assert changed, "fine-tuning did not update the weights"
-    assert all(before[k].shape == after[k].shape for k in before)
+    # ... starting from them: two updates move every weight matrix a little, not to a fresh initialisation.
+    mats = [k for k in before if before[k].ndim == 2]
+    assert all(torch.norm(after[k] - before[k]) < 0.5 * torch.norm(before[k]) for k in mats)
     with pytest.raises(ConfigError, match="holds no model.zip"):
         train("D", timesteps=128, out=tmp_path / "x", config_file=cfg_path, init_from=tmp_path / "nothing")
 

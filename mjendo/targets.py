@@ -4,14 +4,16 @@ A target is a point on a lumen triangle (three vertex ids and barycentric weight
 the wall. ``python -m mjendo.targets map`` measures, for candidate points spread over the whole lumen,
 
 * the **free-space distance**: the closest the tip comes with the stomach removed (FE), over a dense
-  quasi-static sweep of insertion x bending direction x bending magnitude;
+  quasi-static sweep of insertion x bending direction x bending magnitude and over the same moving
+  strategies as below (the tube sags over about a second, so a moving scope reaches further);
 * the **reach with the wall**: the closest the tip comes in the static stomach (SE), over scripted
   insertions at fixed bending (the tube rides along the wall), seeded random exploration with contact
   and two goal-conditioned passes (the damped-least-squares controller aimed at every point still
   unreached, with 20 % and 40 % random actions);
 
 classifies every point (free: free-space distance < 3 mm; contact-aided: >= 10 mm and reached with the
-wall within 3 mm; between: 3-10 mm; out of reach: the rest) and draws the lists: F (the free points,
+wall within 3 mm; between: 3-10 mm; out of reach: the rest), records for every contact-aided point what
+the contact-blind DLS controller aimed at it achieves in SE (``naive_mm``), and draws the lists: F (the free points,
 FE's own targets), A (training) and B (held out), A and B interleaved over the wall with about two
 thirds contact-aided. It writes ``models/stomach/targets.json``. Task version 0 used lumen vertices
 (``stomach.json``'s lists); :func:`load` serves both.
@@ -35,8 +37,8 @@ TARGETS_FILE = paths.STOMACH_DIR / "targets.json"
 FREE_MM = PAPER_SUCCESS_MM  # free: the tip reaches the point in free space (the success distance)
 CONTACT_AIDED_MM = 10.0  # contact-aided: free space misses it by this much or more
 MIN_CARDIA_MM = 35.0  # targets this close to the cardia are in the scope's blind start
-SPACING_MM = 5.0  # listed targets lie at least this far apart (no near-duplicates)
-CONTACT_SHARE = 2 / 3  # of lists A and B: the paper's A reaches 26-34 % outside FE
+SPACING_MM = PAPER_SUCCESS_MM  # listed targets lie at least the success distance apart: no target counts another as reached
+CONTACT_SHARE = 0.65  # of lists A and B, about two thirds: the paper's A reaches 26-34 % outside FE
 SPLIT = "AB"  # A and B alike: B holds 50 or more targets, enough to report success per target
 
 
@@ -150,9 +152,15 @@ AIM_NOISE = (0.2, 0.4)  # share of random actions in the aimed passes: the secon
 N_STEPS = 128
 
 
-def _wall_job(args) -> np.ndarray:
-    """One worker's part of the wall-reach measurement: scripted, random or aimed episodes in SE."""
-    version, tris, bary, kind, items, seed = args
+def _reach_job(args) -> np.ndarray:
+    """One worker's part of a reach measurement in ``env`` (SE: with the wall; FE: free space, dynamically).
+
+    Kinds: "script" (bend, insert all the way at full speed, sweep the bending round at depth), "random"
+    (piecewise-constant random actions), "aimed" (the DLS controller aimed at one point with a share of
+    random actions; every point's closest approach counts) and "naive" (the DLS controller aimed at one
+    point, no noise; only that point's closest approach counts: what aiming alone achieves).
+    """
+    version, env, tris, bary, kind, items, seed = args
     import torch
 
     from mjendo.baseline import DLSController
@@ -161,20 +169,24 @@ def _wall_job(args) -> np.ndarray:
     torch.set_num_threads(1)
     ids = np.arange(len(tris))
     table = TargetTable(ids, tris, bary, {"A": ids.tolist()}, {})  # the candidates, before any list exists
-    task = NavigationTask(env="SE", version=version, max_steps=10**6, randomize_phase=False, table=table)
+    task = NavigationTask(env=env, version=version, max_steps=10**6, randomize_phase=False, table=table,
+                          target_list="A")
     sim = task.sim
     best = np.full(len(tris), np.inf)
     rng = np.random.default_rng(seed)
 
-    def record() -> None:
-        _closest(best, sim.tip_pos(), np.einsum("nk,nkd->nd", bary, sim.vertices()[tris]))
+    def record(only: int | None = None) -> None:
+        if only is None:
+            _closest(best, sim.tip_pos(), task.list_positions())
+        else:
+            best[only] = min(best[only], float(np.linalg.norm(sim.tip_pos() - task.target_pos())))
 
     def ring(phi: float) -> np.ndarray:
         return np.array([np.cos(phi), -np.cos(phi), np.sin(phi), -np.sin(phi)])
 
     for item in items:
         task.reset(rng)
-        if kind == "script":  # bend, then insert all the way (the tube rides the wall), then sweep round
+        if kind == "script":
             direction, mag = item
             for k in range(N_STEPS):
                 task.step(np.concatenate([ring(direction) * mag if k < 12 else np.zeros(4), [0.4 * (k >= 12)]]))
@@ -182,7 +194,7 @@ def _wall_job(args) -> np.ndarray:
             for k in range(48):
                 task.step(np.concatenate([0.4 * ring(direction + 2 * np.pi * k / 48), [0.0]]))
                 record()
-        elif kind == "random":  # piecewise-constant random actions explore further than white noise
+        elif kind == "random":
             a = np.zeros(5)
             for k in range(N_STEPS):
                 if k % 8 == 0:
@@ -192,45 +204,57 @@ def _wall_job(args) -> np.ndarray:
                 record()
                 if res.terminated and res.info["exited"]:
                     break
-        else:  # aimed: the contact-blind DLS controller at one point, with a share of random actions
+        else:
             target, noise = item
             task.set_target(int(target))
             dls = DLSController(task)
             dls.reset(task)
             for _k in range(N_STEPS):
                 res = task.step(rng.uniform(-0.4, 0.4, 5) if rng.random() < noise else dls.act(None, task))
-                record()
+                record(int(target) if kind == "naive" else None)
                 if res.terminated:
                     break
     return best
 
 
-def wall_reach(version: int, tris: np.ndarray, bary: np.ndarray, episodes: int, seed: int,
-               progress: bool = True, workers: int = 2) -> np.ndarray:
-    """Closest approach (m) of the tip to each point (moving with the wall) in SE, using contact.
+def reach(env: str, version: int, tris: np.ndarray, bary: np.ndarray, episodes: int, seed: int,
+          progress: bool = True, workers: int = 2, start: np.ndarray | None = None) -> np.ndarray:
+    """Closest approach (m) of the tip to each point in ``env``, over every strategy (see _reach_job).
 
-    Scripted insertions and seeded random exploration first; then two goal-conditioned passes aim the
-    damped-least-squares controller at every point still unreached (the wall guides the tube on the way).
-    Work is spread over ``workers`` processes; the result does not depend on their number.
+    Scripted insertions and seeded random exploration first; then two aimed passes at every point still
+    beyond 3 mm. Work is spread over ``workers`` processes; the result does not depend on their number.
+    ``start``: closest approaches already measured (e.g. the quasi-static sweep), to aim only where needed.
     """
+    best = np.full(len(tris), np.inf) if start is None else start.copy()
+    for phase, (kind, items) in enumerate([("script", SCRIPTS), ("random", list(range(episodes)))]):
+        np.minimum(best, _pool(env, version, tris, bary, kind, items, seed * 1000 + phase * 100, progress,
+                               workers), out=best)
+    for phase, noise in enumerate(AIM_NOISE, start=2):
+        unreached = [(int(t), noise) for t in np.flatnonzero(best >= from_mm(PAPER_SUCCESS_MM))]
+        np.minimum(best, _pool(env, version, tris, bary, "aimed", unreached, seed * 1000 + phase * 100, progress,
+                               workers), out=best)
+    return best
+
+
+def naive_reach(version: int, tris: np.ndarray, bary: np.ndarray, points, seed: int, progress: bool = True,
+                workers: int = 2) -> np.ndarray:
+    """Closest approach (m) of the contact-blind DLS controller aimed at each of ``points`` in SE (no noise)."""
+    return _pool("SE", version, tris, bary, "naive", [(int(t), 0.0) for t in points], seed * 1000 + 900, progress,
+                 workers)
+
+
+def _pool(env, version, tris, bary, kind, items, seed, progress, workers) -> np.ndarray:
     from multiprocessing import get_context
 
     from tqdm import tqdm
 
-    best = np.full(len(tris), np.inf)
     chunks = 16
-
-    def run(kind: str, items: list, phase: int) -> None:
-        jobs = [(version, tris, bary, kind, items[i::chunks], seed * 1000 + phase * 100 + i) for i in range(chunks)]
-        with get_context("spawn").Pool(workers) as pool:
-            for part in tqdm(pool.imap_unordered(_wall_job, jobs), total=len(jobs), desc=f"{kind} ({len(items)})",
-                             disable=not progress):
-                np.minimum(best, part, out=best)
-
-    run("script", SCRIPTS, 0)
-    run("random", list(range(episodes)), 1)
-    for phase, noise in enumerate(AIM_NOISE, start=2):
-        run("aimed", [(int(t), noise) for t in np.flatnonzero(best >= from_mm(PAPER_SUCCESS_MM))], phase)
+    best = np.full(len(tris), np.inf)
+    jobs = [(version, env, tris, bary, kind, items[i::chunks], seed + i) for i in range(chunks)]
+    with get_context("spawn").Pool(workers) as pool:
+        for part in tqdm(pool.imap_unordered(_reach_job, jobs), total=len(jobs), desc=f"{env} {kind} ({len(items)})",
+                         disable=not progress):
+            np.minimum(best, part, out=best)
     return best
 
 
@@ -291,9 +315,15 @@ def make_map(episodes: int, seed: int, progress: bool = True) -> dict:
     tris, bary = candidates(st)
     t0 = time.time()
     rest = np.einsum("nk,nkd->nd", bary, free_targets("fast", CURRENT_VERSION)[tris])  # where FE's points float
-    free_mm = to_mm(free_sweep(CURRENT_VERSION, rest, progress))
-    wall_mm = to_mm(wall_reach(CURRENT_VERSION, tris, bary, episodes, seed, progress))
+    static_mm = to_mm(free_sweep(CURRENT_VERSION, rest, progress))
+    # Free space reaches further moving than settling (the tube sags over about a second): the free-space
+    # distance is the closer of the quasi-static sweep and the same strategies as with the wall, in FE.
+    free_mm = to_mm(reach("FE", CURRENT_VERSION, tris, bary, episodes, seed, progress, start=from_mm(static_mm)))
+    wall_mm = to_mm(reach("SE", CURRENT_VERSION, tris, bary, episodes, seed, progress))
     cls = classify(free_mm, wall_mm)
+    aided = np.flatnonzero(cls == "contact_aided")
+    naive_mm = np.full(len(tris), np.nan)
+    naive_mm[aided] = to_mm(naive_reach(CURRENT_VERSION, tris, bary, aided, seed, progress)[aided])
     lists = draw_lists(rest, cls, st, seed)
     counts = {c: int(np.sum(cls == c)) for c in ("free", "between", "contact_aided", "out_of_reach")}
     info = {
@@ -304,8 +334,11 @@ def make_map(episodes: int, seed: int, progress: bool = True) -> dict:
         "seconds": round(time.time() - t0, 1),
         **list_info(cls, lists),
     }
+    info["contact_aided_reached_by_aiming"] = int(np.sum(naive_mm[aided] < PAPER_SUCCESS_MM))
     points = [{"id": i, "tri": [int(x) for x in tris[i]], "bary": [round(float(x), 6) for x in bary[i]],
-               "free_mm": round(float(free_mm[i]), 2), "wall_mm": round(float(wall_mm[i]), 2), "class": cls[i]}
+               "static_mm": round(float(static_mm[i]), 2), "free_mm": round(float(free_mm[i]), 2),
+               "wall_mm": round(float(wall_mm[i]), 2),
+               "naive_mm": None if np.isnan(naive_mm[i]) else round(float(naive_mm[i]), 2), "class": cls[i]}
               for i in range(len(tris))]
     return {"version": CURRENT_VERSION, "info": info, "lists": lists, "points": points}
 

@@ -37,7 +37,7 @@ TARGETS_FILE = paths.STOMACH_DIR / "targets.json"
 FREE_MM = PAPER_SUCCESS_MM  # free: the tip reaches the point in free space (the success distance)
 CONTACT_AIDED_MM = 10.0  # contact-aided: free space misses it by this much or more
 MIN_CARDIA_MM = 35.0  # targets this close to the cardia are in the scope's blind start
-SPACING_MM = PAPER_SUCCESS_MM  # listed targets lie at least the success distance apart: no target counts another as reached
+SPACING_MM = PAPER_SUCCESS_MM  # listed targets at least the success distance apart: none counts another as reached
 CONTACT_SHARE = 0.65  # of lists A and B, about two thirds: the paper's A reaches 26-34 % outside FE
 SPLIT = "AB"  # A and B alike: B holds 50 or more targets, enough to report success per target
 

@@ -32,11 +32,11 @@ def frames(path):
 
 @pytest.fixture(scope="module")
 def reachable_target():
-    """A list-A target the baseline reaches in free space (FE), found by trying them in order."""
+    """A target of FE's list the baseline reaches in free space, found by trying them in order."""
     env = EndoscopeEnv("FE", max_steps=80)
     ctrl = DLSController(env.task)
-    for t in env.task.stomach.info["free_reachable_targets"]:
-        if t in set(env.task.targets.tolist()) and run(env, ctrl, target=t)[0]["is_success"]:
+    for t in env.task.targets.tolist()[::7]:
+        if run(env, ctrl, target=t)[0]["is_success"]:
             return t
     pytest.fail("the baseline reached no free-space target")
 

@@ -119,19 +119,21 @@ class Trial:
     error: str = ""
 
 
-def trial_targets(env, n: int) -> list[int]:
+def trial_targets(env, n: int, first: int = 0) -> list[int]:
     """Trials by design: trial i aims at target i mod len(list), each target as often (load phase by the seed)."""
     listed = env.task.targets.tolist()
-    return [listed[i % len(listed)] for i in range(n)]
+    return [listed[i % len(listed)] for i in range(first, first + n)]
 
 
-def trial_records(env, ctrl, name: str, seeds: list[int], keep_paths: bool = False) -> tuple[list, list]:
+def trial_records(env, ctrl, name: str, seeds: list[int], keep_paths: bool = False,
+                  first: int = 0) -> tuple[list, list]:
     """Seeded trials of a controller in an env (its max_steps is the trial length); per-trial records and paths.
 
-    Trial i aims at target i mod len(list) and starts at the load phase its seed draws.
+    ``seeds`` are the seeds of trials ``first``, ``first`` + 1, ...: trial i aims at target i mod len(list)
+    and starts at the load phase its seed draws.
     """
     trials, paths = [], []
-    for i, (seed, target) in enumerate(zip(seeds, trial_targets(env, len(seeds)), strict=True)):
+    for i, (seed, target) in enumerate(zip(seeds, trial_targets(env, len(seeds), first), strict=True), start=first):
         forces, tips, dists, contact_step, contact_pos = [], [], [], math.nan, None
         start, motion = None, 0.0
         for s in rollout.episode(env, ctrl, seed=seed, target=target):
@@ -162,7 +164,7 @@ def trial_records(env, ctrl, name: str, seeds: list[int], keep_paths: bool = Fal
 
 
 def run_trials(controller: str, env_name: str, seeds: list[int], keep_paths: bool = False,
-               fidelity: str = "fast", version: int = CURRENT_VERSION) -> tuple[list, list]:
+               fidelity: str = "fast", version: int = CURRENT_VERSION, first: int = 0) -> tuple[list, list]:
     """Run trials of one cell; a broken policy marks every trial with its error instead of raising."""
     from mjendo.envs import EndoscopeEnv
     from mjendo.policies import force_obs_of, load_controller, version_of
@@ -175,17 +177,17 @@ def run_trials(controller: str, env_name: str, seeds: list[int], keep_paths: boo
         msg = f"{type(exc).__name__}: {exc}".replace("\n", " ")
         nan = float("nan")
         return [Trial(controller, env_name, i, s, -1, False, nan, 0, nan, False, nan, nan, nan, error=msg)
-                for i, s in enumerate(seeds)], []
-    return trial_records(env, ctrl, controller, seeds, keep_paths)
+                for i, s in enumerate(seeds, start=first)], []
+    return trial_records(env, ctrl, controller, seeds, keep_paths, first)
 
 
 def _job(args):
-    controller, env_name, seeds, keep, fidelity, version = args
+    controller, env_name, seeds, keep, fidelity, version, first = args
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     import torch
 
     torch.set_num_threads(1)
-    return run_trials(controller, env_name, seeds, keep, fidelity, version)
+    return run_trials(controller, env_name, seeds, keep, fidelity, version, first)
 
 
 def wilson(successes: int, n: int, z: float = 1.96) -> tuple[float, float]:
@@ -342,7 +344,7 @@ def evaluate(trials: int = 200, controllers=CONTROLLERS, workers: int = 2, out: 
         seeds = [EVAL_SEED_BASE + seed * 100003 + i for i in range(trials)]
         for j in range(0, trials, chunk):
             keep = c == "E" and e == "DE" and j == 0
-            jobs.append((c, e, seeds[j:j + chunk], keep, fidelity, version))
+            jobs.append((c, e, seeds[j:j + chunk], keep, fidelity, version, j))
     t0 = time.time()
     all_trials, tip_paths = [], []
     with get_context("spawn").Pool(workers) as pool:

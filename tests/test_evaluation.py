@@ -144,3 +144,17 @@ def test_training_figure_is_one_row_per_policy(tmp_path, monkeypatch):
     assert len(fig.axes) == 8
     for ax in fig.axes:
         assert len(ax.get_lines()) <= 2  # small multiples, not 8 series on one panel
+
+
+def test_trials_cover_every_target_equally_however_they_are_chunked():
+    from mjendo.envs import EndoscopeEnv
+    from mjendo.evaluation import trial_targets
+
+    env = EndoscopeEnv("SE")
+    listed = env.task.targets.tolist()
+    n = 2 * len(listed) + 3
+    whole = trial_targets(env, n)
+    chunked = [t for j in range(0, n, 7) for t in trial_targets(env, min(7, n - j), j)]
+    assert whole == chunked and set(whole) == set(listed)
+    counts = [whole.count(t) for t in listed]
+    assert max(counts) - min(counts) <= 1

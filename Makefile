@@ -41,6 +41,7 @@ targets: $(STAMP)
 train: $(STAMP)
 	$(BIN)/python -m mjendo.train --policy $(POLICY) $(if $(TIMESTEPS),--timesteps $(TIMESTEPS)) \
 	  $(if $(SEED),--seed $(SEED)) $(if $(N_ENVS),--n-envs $(N_ENVS)) $(if $(BACKEND),--backend $(BACKEND)) \
+	  $(if $(VARIANT),--variant $(VARIANT)) \
 	  $(if $(filter command line environment,$(origin FIDELITY)),--fidelity $(FIDELITY))
 
 # Copy a finished run into models/policies/<POLICY>/ (RUN= another run folder name than seed0).

@@ -43,11 +43,11 @@ class PolicyError(ValueError):
     """A policy cannot be loaded or does not fit the task; the message names the file and what to do."""
 
 
-def observation_layout(force_obs: bool) -> list[dict]:
+def observation_layout(force_obs: bool, scope_obs: bool = False) -> list[dict]:
     """(name, size, unit) of each observation block, in order: what a policy's input means."""
     from mjendo.task import obs_blocks
 
-    return [{"name": n, "size": k, "unit": u} for n, k, u, _ in obs_blocks(force_obs)]
+    return [{"name": n, "size": k, "unit": u} for n, k, u, _ in obs_blocks(force_obs, scope_obs)]
 
 
 def commit() -> str | None:
@@ -71,7 +71,7 @@ def task_meta(cfg: TaskConfig) -> dict:
     import mjendo
     from mjendo.scene import fingerprint
 
-    return {"format": FORMAT, "task": asdict(cfg), "observation": observation_layout(cfg.force_obs),
+    return {"format": FORMAT, "task": asdict(cfg), "observation": observation_layout(cfg.force_obs, cfg.scope_obs),
             "mjendo_version": mjendo.__version__, "scene_fingerprint": fingerprint(cfg.fidelity, cfg.version),
             "commit": commit()}
 
@@ -220,14 +220,14 @@ def resolve(spec: str) -> Path:
                       "folder with model.zip (e.g. runs/E/seed0)")
 
 
-def force_obs(directory: Path) -> bool:
-    """Whether the policy in ``directory`` observes contact and force: its meta, else its input size."""
-    meta = read_meta(directory)
-    if "force_obs" in meta.get("task", {}):
-        return bool(meta["task"]["force_obs"])
+def obs_options(directory: Path) -> dict[str, bool]:
+    """The observation options (force_obs, scope_obs) of the policy in ``directory``: its meta, else its input size."""
+    task = read_meta(directory).get("task", {})
+    if "force_obs" in task:
+        return {"force_obs": bool(task["force_obs"]), "scope_obs": bool(task.get("scope_obs", False))}
     from mjendo.task import obs_size
 
-    return load(directory).n_obs == obs_size(True)
+    return {"force_obs": load(directory).n_obs == obs_size(True), "scope_obs": False}
 
 
 def slim_copy(src: Path, dest: Path) -> None:

@@ -99,16 +99,17 @@ NCONMAX, NJMAX = 256, 1024
 
 
 def with_solver(m: mujoco.MjModel, solver: str | None) -> mujoco.MjModel:
-    """The model, or a copy solving its constraints with another solver (the same physics, to the tolerance).
+    """A copy for MuJoCo Warp, optionally solving its constraints with another solver (the same physics).
 
     On a GPU a step waits for its slowest world: CG in the full stomach stops at its cap on about 12 % of
     contact world-steps, Newton converges in at most 7 iterations but factors an 822-dof Hessian per world;
     which is faster there is for ``python -m mjendo.bench --only batched --batched-solvers`` to say.
+    Warp picks the Jacobian's storage itself (it refuses a dense one beyond 60 dofs): storage is not physics.
     """
-    if solver is None:
-        return m
     out = copy.copy(m)
-    out.opt.solver = solver_id(solver)
+    out.opt.jacobian = mujoco.mjtJacobian.mjJAC_AUTO
+    if solver is not None:
+        out.opt.solver = solver_id(solver)
     return out
 
 
@@ -138,6 +139,9 @@ class BatchedNavigation:
         if isinstance(n_worlds, bool) or not isinstance(n_worlds, int) or n_worlds < 1:
             raise ConfigError(f"n_worlds must be a whole number >= 1, not {n_worlds!r}")
         self.cfg = cfg if cfg is not None else task_config(**task)
+        if self.cfg.scope_obs:
+            raise ConfigError("scope_obs is not available in the batched backend: train such a policy with "
+                              "--backend cpu")
         self.core = NavigationTask(self.cfg)  # the MDP's constants: start states, targets, frame, scales
         core, m = self.core, self.core.sim.model
         self.wp_device = device or ("cuda:0" if wp.is_cuda_available() else "cpu")

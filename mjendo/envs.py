@@ -29,8 +29,8 @@ class EndoscopeEnv(gym.Env):
 
     ## Action space
 
-    ``Box(-0.4, 0.4, (5,), float32)``, applied every control period of 100 ms (v1; 4 physics
-    steps of 25 ms in the fast stomach, 10 of 10 ms in the full one). Out-of-range values are
+    ``Box(-0.4, 0.4, (5,), float32)``, applied every control period of 100 ms (v1; 8 physics
+    steps of 12.5 ms in the fast stomach, 10 of 10 ms in the full one). Out-of-range values are
     clipped; NaN raises.
 
     | index | meaning | unit and scale (v1) |
@@ -40,7 +40,7 @@ class EndoscopeEnv(gym.Env):
 
     ## Observation space
 
-    ``Box(low, high, (11,) or (15,), float32)``; world frame. The bounds are physical
+    ``Box(low, high, (11,), (15,) or with ``scope_obs`` 7 more, float32)``; world frame. The bounds are physical
     (1 m, 5 m/s, 100 N) and observations are clipped to them.
 
     | index | observation | unit |
@@ -51,6 +51,9 @@ class EndoscopeEnv(gym.Env):
     | 10 | previous axial (insertion) action | action units |
     | 11 | contact indicator, force-aware only (``force_obs=True``) | 0 or 1 |
     | 12-14 | resultant contact force on the endoscope / ``force_ref_n`` (1 N), force-aware only | - |
+    | +0 | insertion depth, ``scope_obs=True`` only (after the blocks above) | mm |
+    | +1-3 | tip position from the paper frame's origin (15 mm outside the cardia), ``scope_obs`` only | mm |
+    | +4-6 | tip axis, ``scope_obs`` only | unit vector |
 
     ## Rewards (paper)
 
@@ -71,6 +74,7 @@ class EndoscopeEnv(gym.Env):
     |---|---|---|
     | ``env`` | set by the id | FE, SE, DE, UE1, UE2 |
     | ``force_obs`` | True | include contact indicator and force (policies C, E) |
+    | ``scope_obs`` | False | include insertion depth and tip pose (not the paper's; train/policies.yaml variants) |
     | ``fidelity`` | "fast" | "fast" (reduced-order stomach) or "full" (per-vertex FEM) |
     | ``target_list`` | the env's | "A" (training), "B" (held out) or "F" (free-space targets: FE's own) |
     | ``version`` | set by the id | task version (below) |
@@ -91,7 +95,7 @@ class EndoscopeEnv(gym.Env):
       (the hiatus) instead of a rigid straight slide; the patient lies in the left lateral decubitus
       position (gravity towards the greater curvature); control at 10 Hz with insertion up to
       25 mm/s and cable stroke up to 4 mm/s, so an 80-step trial lasts 8 s (two breathing cycles);
-      fast stomach at 25 ms; targets are points on lumen triangles from the reachability map
+      fast stomach at 12.5 ms; targets are points on lumen triangles from the reachability map
       (``python -m mjendo.targets map``): lists A and B mostly contact-aided, FE has its own list F.
     * v0: first release: rigid slide, upright gravity, 30 ms control period, 133 mm/s insertion,
       lumen-vertex targets within 20 mm of the free-space workspace.
@@ -124,6 +128,10 @@ class EndoscopeEnv(gym.Env):
         self.metadata = {**self.metadata, "render_fps": int(round(1.0 / self.task.control_dt))}
         self.action_space = gym.spaces.Box(-PAPER_ACTION_LIMIT, PAPER_ACTION_LIMIT, (ACTION_SIZE,), np.float32)
         self.observation_space = gym.spaces.Box(self.task.obs_low, self.task.obs_high, dtype=np.float32)
+
+    def set_contact_aided_weight(self, weight: float) -> None:
+        """Curriculum hook for training (``VecEnv.env_method``): see NavigationTask.set_contact_aided_weight."""
+        self.task.set_contact_aided_weight(weight)
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)

@@ -167,10 +167,10 @@ def run_trials(controller: str, env_name: str, seeds: list[int], keep_paths: boo
                fidelity: str = "fast", version: int = CURRENT_VERSION, first: int = 0) -> tuple[list, list]:
     """Run trials of one cell; a broken policy marks every trial with its error instead of raising."""
     from mjendo.envs import EndoscopeEnv
-    from mjendo.policies import force_obs_of, load_controller, version_of
+    from mjendo.policies import load_controller, obs_options_of, version_of
 
     try:
-        env = EndoscopeEnv(env_name, force_obs=force_obs_of(controller), max_steps=PAPER_EVAL_STEPS,
+        env = EndoscopeEnv(env_name, **obs_options_of(controller), max_steps=PAPER_EVAL_STEPS,
                            fidelity=fidelity, version=version_of(controller, version))
         ctrl = load_controller(controller, env.task)
     except Exception as exc:  # reported per cell, the other cells still run

@@ -42,10 +42,16 @@ def outcome(cfg: TaskConfig, tip, target, origin, axis, force, steps, ok) -> dic
             "truncated": ((steps >= cfg.max_steps) | ~ok) & ~terminated}
 
 
-def observe(xp, cfg: TaskConfig, delta, tip_vel, cable, prev_axial, contact, force, low, high):
-    """Observation rows (see task.OBS_BLOCKS), clipped to their physical bounds; ``xp`` is numpy or torch."""
+def observe(xp, cfg: TaskConfig, delta, tip_vel, cable, prev_axial, contact, force, low, high, scope=None):
+    """Observation rows (see task.obs_blocks), clipped to their physical bounds; ``xp`` is numpy or torch.
+
+    ``scope`` (with ``cfg.scope_obs``): insertion (m), tip position from the paper frame's origin (m), tip axis.
+    """
     blocks = [delta * MM_PER_M, tip_vel * MM_PER_M, cable * MM_PER_M, prev_axial[:, None] * 1.0]
     if cfg.force_obs:
         blocks += [contact[:, None] * 1.0, force / cfg.force_ref_n]
+    if cfg.scope_obs:
+        insertion, tip, axis = scope
+        blocks += [insertion[:, None] * MM_PER_M, tip * MM_PER_M, axis * 1.0]
     obs = xp.asarray(xp.concatenate(blocks, 1), dtype=xp.float32)
     return xp.minimum(xp.maximum(obs, low), high)

@@ -17,7 +17,7 @@ from mjendo.artifacts import PolicyError
 from mjendo.config import ACTION_SIZE, CURRENT_VERSION, PAPER_ACTION_LIMIT, ConfigError
 from mjendo.task import ACTION_SCALE_FIELDS, NavigationTask, obs_size
 
-__all__ = ["PPOController", "PolicyError", "RandomController", "force_obs_of", "load_controller"]
+__all__ = ["PPOController", "PolicyError", "RandomController", "force_obs_of", "load_controller", "obs_options_of"]
 
 
 class PPOController:
@@ -43,9 +43,12 @@ class PPOController:
 
     def check(self, task: NavigationTask) -> None:
         """Refuse a task whose observation or action meaning differs from the one the policy trained in."""
-        if self.n_obs != obs_size(task.cfg.force_obs):
-            raise PolicyError(f"policy {self.name} expects {self.n_obs} observations but the task gives "
-                              f"{obs_size(task.cfg.force_obs)}: use force_obs={self.n_obs == obs_size(True)}")
+        given = obs_size(task.cfg.force_obs, task.cfg.scope_obs)
+        if self.n_obs != given:
+            fits = [f"force_obs={f}, scope_obs={s}" for f in (False, True) for s in (False, True)
+                    if obs_size(f, s) == self.n_obs]
+            raise PolicyError(f"policy {self.name} expects {self.n_obs} observations but the task gives {given}: "
+                              f"use {' or '.join(fits) or 'the task the policy was trained in'}")
         trained = artifacts.trained_task(self.meta)
         if int(trained["version"]) != task.cfg.version:
             raise PolicyError(f"policy {self.name} was trained in task version {trained['version']}, the task is "
@@ -89,11 +92,16 @@ class RandomController:
 NON_LEARNED = ("baseline", "random")
 
 
-def force_obs_of(spec: str) -> bool:
-    """Whether the controller named by ``spec`` needs the force-aware observation (from its own folder)."""
+def obs_options_of(spec: str) -> dict[str, bool]:
+    """The observation options (force_obs, scope_obs) the controller named by ``spec`` needs (its own folder)."""
     if spec in NON_LEARNED:
-        return True  # they ignore the observation's force part
-    return artifacts.force_obs(artifacts.resolve(spec))
+        return {"force_obs": True, "scope_obs": False}  # they ignore the observation's force part
+    return artifacts.obs_options(artifacts.resolve(spec))
+
+
+def force_obs_of(spec: str) -> bool:
+    """Whether the controller named by ``spec`` needs the force-aware observation."""
+    return obs_options_of(spec)["force_obs"]
 
 
 def version_of(spec: str, default: int = CURRENT_VERSION) -> int:

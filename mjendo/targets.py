@@ -51,6 +51,7 @@ class TargetTable:
     bary: np.ndarray  # (n, 3) weights, summing to 1
     lists: dict[str, list[int]]
     info: dict
+    classes: np.ndarray | None = None  # (n,) the map's class of each point; None for version 0's vertices
 
     def rows(self, ids) -> np.ndarray:
         """Row of each id in the table."""
@@ -77,7 +78,8 @@ def load(version: int = CURRENT_VERSION, path: Path = TARGETS_FILE) -> TargetTab
     meta = json.loads(path.read_text())
     pts = meta["points"]
     return TargetTable(np.array([p["id"] for p in pts], dtype=np.int64), np.array([p["tri"] for p in pts]),
-                       np.array([p["bary"] for p in pts]), meta["lists"], meta["info"])
+                       np.array([p["bary"] for p in pts]), meta["lists"], meta["info"],
+                       np.array([p["class"] for p in pts], dtype=object))
 
 
 # --------------------------------------------------------------------------

@@ -36,6 +36,9 @@ OBS_BLOCKS = [("ee_to_target", 3, "mm", (-1000.0, 1000.0)), ("ee_velocity", 3, "
               ("previous_axial_action", 1, "action units", (-PAPER_ACTION_LIMIT, PAPER_ACTION_LIMIT))]
 FORCE_BOUND_N = 100.0
 FORCE_BLOCKS = [("contact", 1, "0/1", (0.0, 1.0)), ("force", 3, "N / force_ref_n", (-FORCE_BOUND_N, FORCE_BOUND_N))]
+# scope_obs: the tip position is taken from the paper frame's origin (15 mm outside the cardia), world axes.
+SCOPE_BLOCKS = [("insertion", 1, "mm", (-100.0, 300.0)), ("tip_position", 3, "mm", (-1000.0, 1000.0)),
+                ("tip_axis", 3, "unit vector", (-1.0, 1.0))]
 SETTLE_S = 1.0  # the stomach settles under gravity (and load) before episodes start
 # Start states are snapshots of the stomach in its periodic steady state, this
 # many per load cycle (every 50 ms of a 4 s cycle): an episode starts at its
@@ -50,18 +53,18 @@ TARGET_YELLOW = (1.0, 0.85, 0.0, 1.0)
 ACTION_SCALE_FIELDS = ("control_period_s", "cable_mm_per_unit", "insertion_mm_per_unit")
 
 
-def obs_blocks(force_obs: bool) -> list[tuple]:
-    return OBS_BLOCKS + (FORCE_BLOCKS if force_obs else [])
+def obs_blocks(force_obs: bool, scope_obs: bool = False) -> list[tuple]:
+    return OBS_BLOCKS + (FORCE_BLOCKS if force_obs else []) + (SCOPE_BLOCKS if scope_obs else [])
 
 
-def obs_size(force_obs: bool) -> int:
-    return sum(b[1] for b in obs_blocks(force_obs))
+def obs_size(force_obs: bool, scope_obs: bool = False) -> int:
+    return sum(b[1] for b in obs_blocks(force_obs, scope_obs))
 
 
 def obs_bounds(cfg: TaskConfig) -> tuple[np.ndarray, np.ndarray]:
     """Lower and upper bound of every observation entry (the force block in units of force_ref_n)."""
     lo, hi = [], []
-    for name, n, _unit, (a, b) in obs_blocks(cfg.force_obs):
+    for name, n, _unit, (a, b) in obs_blocks(cfg.force_obs, cfg.scope_obs):
         scale = 1.0 / cfg.force_ref_n if name == "force" else 1.0
         lo += [a * scale] * n
         hi += [b * scale] * n
@@ -101,10 +104,13 @@ class NavigationTask:
         rows = table.rows(self.targets)
         # Each listed target's lumen triangle and weights, in list order (the batched backend reads them too).
         self.target_tri, self.target_bary = table.tris[rows], table.bary[rows]
+        self.contact_aided = table.classes[rows] == "contact_aided" if table.classes is not None \
+            else np.zeros(len(rows), bool)
+        self.target_p: np.ndarray | None = None  # sampling probabilities of the list's targets; None: uniform
         self.cable_step = from_mm(c.cable_mm_per_unit)
         self.insertion_step = from_mm(c.insertion_mm_per_unit)
         self.substeps = substeps(c)
-        self.obs_size = obs_size(c.force_obs)
+        self.obs_size = obs_size(c.force_obs, c.scope_obs)
         self.obs_low, self.obs_high = obs_bounds(c)
         self.control_dt = self.substeps * self.sim.model.opt.timestep
         # Paper's frame: x along the insertion axis, origin 15 mm outside the
@@ -169,7 +175,12 @@ class NavigationTask:
         sim.set_controls(self.pulls, self.insertion)
         mujoco.mj_forward(sim.model, sim.data)
         self.contact = sim.contact()
-        return self.set_target(int(rng.choice(self.targets)))
+        return self.set_target(int(rng.choice(self.targets, p=self.target_p)))
+
+    def set_contact_aided_weight(self, weight: float) -> None:
+        """Draw contact-aided targets ``weight`` times as often as the others (a training curriculum)."""
+        w = np.where(self.contact_aided, float(weight), 1.0)
+        self.target_p = None if weight == 1.0 or w.sum() <= 0 else w / w.sum()
 
     def set_target(self, index: int) -> np.ndarray:
         """Aim at another vertex of the list (e.g. to replay a chosen target); returns the observation."""
@@ -263,6 +274,8 @@ class NavigationTask:
         sim = self.sim
         if delta is None:
             delta = self.target_pos() - sim.tip_pos()
+        scope = (np.array([sim.insertion()]), (sim.tip_pos() - self.origin)[None], sim.tip_axis()[None]) \
+            if self.cfg.scope_obs else None
         return mdp.observe(np, self.cfg, delta[None], sim.tip_vel()[None], sim.cable_lengths()[None],
                            np.array([self.prev_axial]), np.array([float(self.contact.active)]),
-                           self.contact.force[None], self.obs_low, self.obs_high)[0]
+                           self.contact.force[None], self.obs_low, self.obs_high, scope)[0]

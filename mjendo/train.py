@@ -110,6 +110,11 @@ def _callbacks(cfg: TrainConfig, run: Path, meta: dict, start_steps: int, progre
             self.last_eval: float | None = None
             self.best = _best_so_far(run)
 
+        def _on_rollout_start(self) -> None:
+            if cfg.curriculum_steps:  # contact-aided targets phase in (TrainConfig.curriculum_steps)
+                self.training_env.env_method("set_contact_aided_weight",
+                                             min(1.0, self.num_timesteps / cfg.curriculum_steps))
+
         def _on_step(self) -> bool:
             for info in self.locals["infos"]:
                 ep = info.get("episode")
@@ -260,7 +265,8 @@ def _run_config(run: Path, cfg: TrainConfig) -> TrainConfig:
 
 
 def run_folder(cfg: TrainConfig, out: Path, run_name: str | None) -> Path:
-    default = f"seed{cfg.seed}" + ("" if cfg.fidelity == "fast" else f"-{cfg.fidelity}")
+    default = (f"{cfg.variant}-" if cfg.variant else "") + f"seed{cfg.seed}" \
+        + ("" if cfg.fidelity == "fast" else f"-{cfg.fidelity}")
     return Path(out) / cfg.policy / (run_name or default)
 
 
@@ -268,9 +274,9 @@ def train(policy: str, timesteps: int | None = None, seed: int | None = None, n_
           out: Path | None = None, run_name: str | None = None, fresh: bool = False,
           vec_env: str | None = None, ship: bool = False, config_file: Path | None = None,
           fidelity: str | None = None, init_from: Path | None = None, learning_rate: float | None = None,
-          progress: bool = True, backend: str | None = None) -> Path:
+          progress: bool = True, backend: str | None = None, variant: str | None = None) -> Path:
     """Train (or resume) one policy; returns the run folder (``progress=False``: no progress bar)."""
-    cfg = load_config(policy, config_file or paths.TRAINING_CONFIG, total_timesteps=timesteps, seed=seed,
+    cfg = load_config(policy, config_file or paths.TRAINING_CONFIG, variant, total_timesteps=timesteps, seed=seed,
                       n_envs=n_envs, vec_env=vec_env, fidelity=fidelity, init_from=init_from,
                       learning_rate=learning_rate, backend=backend)
     run = run_folder(cfg, out or paths.RUNS, run_name)
@@ -376,7 +382,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--n-envs", type=int)
     ap.add_argument("--vec-env", choices=["subproc", "dummy"])
     ap.add_argument("--out", type=Path, default=paths.RUNS)
-    ap.add_argument("--run", help="run name (default seed<N>)")
+    ap.add_argument("--run", help="run name (default seed<N>, or <variant>-seed<N>)")
+    ap.add_argument("--variant", help="an entry of the config's variants block (e.g. scope-curriculum for E)")
     ap.add_argument("--fresh", action="store_true", help="discard an existing run instead of resuming")
     ap.add_argument("--ship", action="store_true", help="copy the finished policy to models/policies/")
     ap.add_argument("--config", type=Path, help="training config (default train/policies.yaml)")
@@ -388,7 +395,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="warp: every environment a world of MuJoCo Warp on the GPU (the config's batched block)")
     a = ap.parse_args(argv)
     return cli.run(lambda: train(a.policy, a.timesteps, a.seed, a.n_envs, a.out, a.run, a.fresh, a.vec_env, a.ship,
-                                 a.config, a.fidelity, a.init_from, a.learning_rate, backend=a.backend),
+                                 a.config, a.fidelity, a.init_from, a.learning_rate, backend=a.backend,
+                                 variant=a.variant),
                    ConfigError, PolicyError)
 
 

@@ -134,6 +134,10 @@ class TrainConfig:
     """TaskConfig fields other than env/fidelity/force_obs (action scales, max_steps, force_penalty, ...)"""
     init_from: str | None = None
     """policy folder to start from (fine-tuning), or None"""
+    variant: str | None = None
+    """name of the config's variants entry this run applies to its policy, or None (the paper's policy)"""
+    curriculum_steps: int = 0
+    """steps over which contact-aided targets go from never drawn to drawn as often as the others (0: none)"""
 
     def task_config(self) -> TaskConfig:
         """The task this run trains in (validated)."""
@@ -156,6 +160,9 @@ class TrainConfig:
         if self.total_timesteps < 1:
             raise ConfigError(f"total_timesteps must be >= 1 (got {self.total_timesteps}): a run that trains no "
                               "step would be marked finished and could be shipped")
+        if self.curriculum_steps < 0 or (self.curriculum_steps and self.backend == "warp"):
+            raise ConfigError(f"curriculum_steps must be >= 0 and needs the cpu backend (got {self.curriculum_steps}, "
+                              f"backend {self.backend})")
         for name in ("checkpoint_every", "eval_every", "eval_episodes"):
             if getattr(self, name) < 1:
                 raise ConfigError(f"{name} must be >= 1")
@@ -252,7 +259,19 @@ def read_yaml(path: Path) -> dict:
     return raw
 
 
-def load(policy: str, path: Path, **overrides) -> TrainConfig:
+def _variant(raw: dict, path: Path, policy: str, variant: str) -> dict:
+    """A variants entry of the config (its ``policy`` must be the one trained), without that key."""
+    variants = raw.get("variants") or {}
+    block = variants.get(variant)
+    if not isinstance(block, dict):
+        raise ConfigError(f"training config {path} has no variant {variant!r}; valid: {', '.join(variants) or 'none'}")
+    if block.get("policy") != policy:
+        raise ConfigError(f"variant {variant} is a variant of policy {block.get('policy')}, not {policy}: "
+                          f"use --policy {block.get('policy')}")
+    return {k: v for k, v in block.items() if k != "policy"}
+
+
+def load(policy: str, path: Path, variant: str | None = None, **overrides) -> TrainConfig:
     """The resolved, validated config of one policy: defaults, its entry, fine-tuning block, then overrides.
 
     ``overrides`` are command-line values (None: not given); ``learning_rate``
@@ -265,6 +284,8 @@ def load(policy: str, path: Path, **overrides) -> TrainConfig:
     if not isinstance(entry, dict):
         raise ConfigError(f"training config {path} has no entry for policy {policy} under 'policies'")
     merged = _merge(raw.get("defaults") or {}, entry)
+    if variant is not None:
+        merged = {**_merge(merged, _variant(raw, path, policy, variant)), "variant": variant}
     merged["policy"] = policy
     cfg = from_dict(TrainConfig, merged, f"{Path(path).name} policy {policy}")
     given = {k: v for k, v in overrides.items() if v is not None}

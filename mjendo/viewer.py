@@ -26,7 +26,7 @@ from mjendo.config import CURRENT_VERSION, FIDELITIES, ConfigError
 from mjendo.endoscope import TIP_CAMERA
 from mjendo.envs import EndoscopeEnv
 from mjendo.gl import NO_GL_HELP, NoOpenGLError
-from mjendo.policies import PolicyError, force_obs_of, load_controller, version_of
+from mjendo.policies import PolicyError, load_controller, obs_options_of, version_of
 from mjendo.scene import BACKDROP_GROUP
 from mjendo.task import NavigationTask
 
@@ -188,7 +188,7 @@ def record(path: Path, policy: str = "E", env_name: str = "DE", episodes: int = 
     if not path.parent.exists() or not _writable(path.parent):
         raise ConfigError(f"cannot write {path}: folder {path.parent} is missing or read-only")
     width, height = width - width % 2, height - height % 2  # H.264 needs even sizes
-    env = EndoscopeEnv(env_name, force_obs=force_obs_of(policy), max_steps=max_steps, fidelity=fidelity,
+    env = EndoscopeEnv(env_name, **obs_options_of(policy), max_steps=max_steps, fidelity=fidelity,
                        version=version_of(policy))
     ctrl = load_controller(policy, env.task)
     rec = Recorder(env, camera, width, height)
@@ -233,7 +233,8 @@ def interactive(policy: str, env_name: str, seed: int) -> None:
     except Exception:
         raise NoOpenGLError("no display for an interactive window: record a video instead with "
                             "`python -m mjendo.viewer --headless --record out.mp4`") from None
-    env = EndoscopeEnv(env_name, force_obs=policy == "keyboard" or force_obs_of(policy), max_steps=10**9,
+    opts = {"force_obs": True} if policy == "keyboard" else obs_options_of(policy)
+    env = EndoscopeEnv(env_name, **opts, max_steps=10**9,
                        version=CURRENT_VERSION if policy == "keyboard" else version_of(policy))
     style(env.task.sim.model)
     ctrl = load_controller(policy, env.task) if policy != "keyboard" else None

@@ -156,6 +156,36 @@ def test_force_blind_observation_is_the_aware_one_without_force():
     np.testing.assert_allclose(oa[12:], ia["force_N"], rtol=1e-6)  # force / force_ref_n (1 N)
 
 
+def test_scope_observation_is_the_insertion_and_tip_pose_appended():
+    plain, scoped = EndoscopeEnv("DE"), EndoscopeEnv("DE", scope_obs=True)
+    assert scoped.observation_space.shape == (22,)
+    op, _ = plain.reset(seed=3)
+    os_, _ = scoped.reset(seed=3)
+    for _ in range(8):
+        op, *_ = plain.step(np.array([0.2, 0, 0, 0, 0.4]))
+        os_, *_ = scoped.step(np.array([0.2, 0, 0, 0, 0.4]))
+    np.testing.assert_array_equal(op, os_[:15])
+    sim, task = scoped.task.sim, scoped.task
+    assert os_[15] == pytest.approx(sim.insertion() * 1e3, rel=1e-5) and os_[15] > 15.0  # 8 x 2.5 mm fed in
+    np.testing.assert_allclose(os_[16:19], (sim.tip_pos() - task.origin) * 1e3, rtol=1e-5)
+    assert np.linalg.norm(os_[19:22]) == pytest.approx(1.0, abs=1e-5)
+
+
+def test_contact_aided_weight_sets_how_often_those_targets_are_drawn():
+    env = EndoscopeEnv("DE")
+    hard = set(env.task.targets[env.task.contact_aided].tolist())
+    assert 0.5 < len(hard) / len(env.task.targets) < 0.8  # list A: about two thirds (docs/task.md)
+
+    def share(weight, n=150):
+        env.set_contact_aided_weight(weight)
+        return np.mean([env.reset(seed=s)[1]["target_index"] in hard for s in range(n)])
+
+    assert share(0.0) == 0.0
+    assert 0.1 < share(0.25) < 0.5 < share(1.0) < 0.8
+    env.set_contact_aided_weight(1.0)
+    assert env.task.target_p is None  # weight 1: the paper's uniform draw, unchanged
+
+
 def test_bad_actions_and_names():
     env = EndoscopeEnv("DE")
     env.reset(seed=0)

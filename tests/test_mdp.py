@@ -36,6 +36,14 @@ def test_numpy_and_torch_agree_on_every_output():
     o1 = mdp.observe(np, cfg, *parts, lo, hi)
     o2 = mdp.observe(torch, cfg, *(torch.as_tensor(x) for x in parts), torch.as_tensor(lo), torch.as_tensor(hi))
     np.testing.assert_array_equal(o1, o2.numpy())
+    scoped = task_config(env="DE", scope_obs=True)
+    lo, hi = obs_bounds(scoped)
+    scope = (np.linspace(0.0, 0.16, 64), args[0], args[0] / np.linalg.norm(args[0], axis=1, keepdims=True))
+    s1 = mdp.observe(np, scoped, *parts, lo, hi, scope)
+    s2 = mdp.observe(torch, scoped, *(torch.as_tensor(x) for x in parts), torch.as_tensor(lo), torch.as_tensor(hi),
+                     tuple(torch.as_tensor(x) for x in scope))
+    np.testing.assert_array_equal(s1, s2.numpy())
+    np.testing.assert_array_equal(s1[:, :15], o1)  # the scope's state is appended, the rest unchanged
 
 
 def test_the_paper_rewards_and_an_unstable_step():

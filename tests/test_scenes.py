@@ -101,3 +101,22 @@ def test_scene_files_have_the_paper_contact_settings():
     np.testing.assert_allclose(m.opt.gravity, [-9.8, 0, 0])
     v0 = mujoco.MjModel.from_xml_path(str(scene.scene_path("DE", "fast", version=0)))
     np.testing.assert_allclose(v0.opt.gravity, [0, 0, -9.8])
+
+
+def test_the_jacobian_storage_changes_speed_not_physics():
+    # scene.fingerprint leaves the jacobian option out of the hash: dense and sparse must step alike.
+    from mjendo.envs import EndoscopeEnv
+
+    assert 'jacobian="dense"' in scene.scene_path("DE", "fast").read_text()
+    tips = []
+    for jac in (mujoco.mjtJacobian.mjJAC_DENSE, mujoco.mjtJacobian.mjJAC_SPARSE):
+        env = EndoscopeEnv("DE")
+        env.task.sim.model.opt.jacobian = jac
+        env.reset(seed=2)
+        start = env.task.sim.tip_pos()
+        rng = np.random.default_rng(0)
+        for _ in range(60):
+            env.step(np.r_[rng.uniform(-0.4, 0.4, 4), 0.3])
+        tips.append(env.task.sim.tip_pos())
+    assert np.linalg.norm(tips[0] - start) > 0.02  # the scope went 45 mm in: a comparison of moving tips
+    assert np.linalg.norm(tips[0] - tips[1]) < 1e-9  # m

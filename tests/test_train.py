@@ -16,7 +16,7 @@ from mjendo.paths import TRAINING_CONFIG
 from mjendo.policies import PolicyError, PPOController, load_controller
 from mjendo.scene import fingerprint
 from mjendo.task import NavigationTask
-from mjendo.train import latest_checkpoint, load_config, train
+from mjendo.train import latest_checkpoint, load_config, run_folder, train
 
 
 @pytest.fixture(scope="module")
@@ -219,6 +219,18 @@ def _yaml_with(tmp_path, edit):
 def test_training_config_is_validated(tmp_path, edit, message):
     with pytest.raises(ConfigError, match=message):
         load_config("E", _yaml_with(tmp_path, edit))
+
+
+def test_a_variant_merges_over_its_policy_and_names_its_run(tmp_path):
+    cfg = load_config("E", TRAINING_CONFIG, "scope-curriculum")
+    assert cfg.variant == "scope-curriculum" and cfg.curriculum_steps > 0 and cfg.task_config().scope_obs
+    assert cfg.task_config().force_obs and cfg.env == "DE"  # E's own entry still applies
+    assert run_folder(cfg, tmp_path, None) == tmp_path / "E" / "scope-curriculum-seed0"
+    assert load_config("E", TRAINING_CONFIG).curriculum_steps == 0  # the paper's E has none
+    with pytest.raises(ConfigError, match="variant scope-curriculum is a variant of policy E, not D"):
+        load_config("D", TRAINING_CONFIG, "scope-curriculum")
+    with pytest.raises(ConfigError, match="no variant 'nope'; valid: scope-curriculum"):
+        load_config("E", TRAINING_CONFIG, "nope")
 
 
 def test_per_policy_ppo_and_task_blocks_merge_into_the_defaults(tmp_path):

@@ -279,9 +279,9 @@ def _steps_done(cfg: StudyConfig, grid: list[tuple[str, int]]) -> int:
 
 def run_grid(cfg: StudyConfig) -> list[dict]:
     """Every grid point as a Ray task; progress every 15 s; returns all trial rows."""
+    connect(cfg.address)  # first: without Ray it says how to install it
     import ray
 
-    connect(cfg.address)
     grid = [(p, s) for p in cfg.policies for s in cfg.seeds]
     for p, s in grid:
         if adopt_shipped(cfg, p, s):

@@ -5,6 +5,8 @@ step-by-step agreement is asserted before contact; with contact, quantities that
 are compared (docs/backends.md).
 """
 
+import sys
+
 import mujoco
 import numpy as np
 import pytest
@@ -389,3 +391,17 @@ def test_the_fast_stomachs_solver_converges_and_a_starved_one_is_counted():
     batch.mw.opt.iterations = 1  # starved: the solves stop unconverged, and the batch counts them
     batch.step(np.array([[0, 0, 0, 0, 0.4]]))
     assert batch.solver_capped == 1 and batch.capped_fraction == pytest.approx(1 / 46)
+
+
+def test_without_mujoco_warp_the_batched_backend_says_how_to_install_it(monkeypatch):
+    import mjendo.batch as batch
+
+    monkeypatch.setitem(sys.modules, "mujoco_warp", None)
+    with pytest.raises(ConfigError, match=r"the batched backend needs MuJoCo Warp: install it with `pip install "
+                                          r"'mjendo\[warp\]'`"):
+        batch.BatchedNavigation(1, env="FE", device="cpu")
+
+
+def test_the_scope_observation_is_refused_by_the_batched_backend():
+    with pytest.raises(ConfigError, match="scope_obs is not available in the batched backend.*--backend cpu"):
+        BatchedNavigation(1, env="FE", device="cpu", scope_obs=True)

@@ -370,6 +370,7 @@ BAD_TASK_ARGS = [
     ({"cable_mm_per_unit": float("nan")}, "cable_mm_per_unit must be a finite number"),
     ({"insertion_mm_per_unit": float("inf")}, "insertion_mm_per_unit must be a finite number"),
     ({"force_obs": "false"}, "force_obs must be True or False"),
+    ({"scope_obs": 1}, "scope_obs must be True or False"),
     ({"randomize_phase": 1}, "randomize_phase must be True or False"),
     ({"max_steps": 1.7}, "max_steps must be a whole number"),
     ({"max_steps": 0}, "max_steps must be a whole number >= 1"),

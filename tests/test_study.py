@@ -165,3 +165,21 @@ def test_comparisons_resample_seeds_and_targets():
     half = rows(lambda k: float(k < 5))
     lo, hi = study._over_targets(half, never, rng)
     assert 15 < lo < 50 < hi < 85
+
+
+def test_seeds_that_are_not_numbers_are_a_usage_error(capsys):
+    from mjendo.study import main
+
+    with pytest.raises(SystemExit) as exit_:
+        main(["--seeds", "a,b"])
+    assert exit_.value.code == 2 and "expected comma-separated whole numbers, got 'a,b'" in capsys.readouterr().err
+
+
+def test_a_study_without_ray_says_how_to_install_it(monkeypatch, capsys, tmp_path):
+    from mjendo.study import main
+
+    monkeypatch.setitem(sys.modules, "ray", None)  # what `import ray` meets where Ray is not installed
+    assert main(["--policies", "E", "--seeds", "0", "--runs", str(tmp_path), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert "error: the study runs on Ray: install it with `pip install 'mjendo[study]'`" in err
+    assert not any(tmp_path.iterdir())  # nothing trained, nothing written

@@ -83,3 +83,11 @@ def test_contact_aided_targets_are_out_of_free_space_reach_by_an_independent_sea
         res = minimize(lambda x, p=p: np.linalg.norm(space.tip(x) - p), x0, method="Nelder-Mead",
                        options={"maxfev": 40, "initial_simplex": np.vstack([x0, x0 + np.diag([0.01, 0.4, 0.2])])})
         assert res.fun * 1e3 >= 9.0, (i, res.fun * 1e3, POINTS[i]["free_mm"])
+
+
+def test_a_missing_target_table_says_how_to_make_it(tmp_path):
+    from mjendo.config import ConfigError
+
+    with pytest.raises(ConfigError, match=r"targets.json is missing; make it with `?python -m mjendo.targets map"):
+        targets.load(CURRENT_VERSION, tmp_path / "targets.json")
+    assert targets.load(0, tmp_path / "targets.json").lists["A"]  # version 0's vertex targets need no table

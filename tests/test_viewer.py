@@ -164,3 +164,17 @@ def test_tip_camera_shows_the_wall_lit_by_the_tip_light_not_a_giant_target(reach
     white = np.mean(tip_pane.min(axis=2) > 235)
     assert white < 0.05, f"{white:.0%} of the tip view is white"
     assert tip_pane.std() > 5  # not blank: the lit wall shows
+
+
+def test_no_opengl_backend_names_what_to_install(tmp_path, monkeypatch, capsys):
+    from mjendo import viewer
+
+    def no_context(*args, **kwargs):
+        raise mujoco.FatalError("gladLoadGL error")  # what mujoco.Renderer raises without a usable OpenGL
+
+    monkeypatch.setattr(viewer.mujoco, "Renderer", no_context)
+    out = tmp_path / "v.mp4"
+    assert viewer.main(["--headless", "--record", str(out), "--policy", "random", "--env", "FE"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: no OpenGL backend for headless rendering: install EGL") and "libosmesa6" in err
+    assert "gladLoadGL" in err and not out.exists()

@@ -125,6 +125,7 @@ class Endoscope:
     # lets the chain run at the scene timestep without changing statics.
     joint_armature: float = 2e-5
     joint_damping: float = 2e-3  # N m s / rad
+    pivot_armature: float = 2e-5  # the cardia pivot's hinges (the tube's own inertia dominates there)
     cable_max_tension_n: float = 40.0
     cable_kp_n_per_m: float = 8000.0  # cable servo stiffness (position control)
     insertion_kp_n_per_m: float = 2000.0  # stiff insertion servo (a motorised feeder)
@@ -366,15 +367,18 @@ class TaskVersion:
 
 VERSIONS: dict[int, TaskVersion] = {
     0: TaskVersion(Endoscope(), (0.0, 0.0, -1.0), 0.0, 0.01, (4.1, 5.7, 6.3), 0.03, 2.5, 10.0),
-    # 25 ms: 4 physics steps per 100 ms control step; at the slower tip the wall's contact still
-    # resolves 0.6 mm per step, and gravity sag, press forces and load motion match 10 ms (docs/physics.md).
-    # 12.5 ms: 8 physics steps per 100 ms control step. At 25 ms a buckled tube pressed into the J's bottom
-    # set off a numerical event (tip 2.6 m/s, wall swept 120 mm in 0.1 s); at 20 ms an end-on press held
-    # by the feeder never came to rest (tip 1-4 mm/s after 4 s, at any solver tolerance); 12.5 ms and
-    # 10 ms settle it (0.06 and 0.01 mm/s) (docs/physics.md "Timestep").
-    1: TaskVersion(Endoscope(pivot_stiffness_Nm_per_rad=0.03, insertion_max_force_n=INSERTION_MAX_FORCE_N),
+    # 20 ms: 5 physics steps per 100 ms control step. The bending section's hinge modes (1.2 N m/rad on
+    # 2e-5 kg m^2: 39 Hz) sit above what any of these steps resolves; they rang under contact and set off
+    # numerical events (driven into the wall, bang-bang: 0.09 % of steps above 10 N, the tip jumping 47 mm
+    # in one control step, up to 3.9 m/s, at 12.5 ms). Armature 1e-3 kg m^2 (5.5 Hz, the chain still
+    # answers a cable command within a control step) and damping 0.01 N m s/rad on the bending hinges
+    # remove them: no step above 10 N, tip at most 0.75 m/s, at 20 ms; held presses settle (0.10 mm/s
+    # after 4 s) with forces within 11 % of the lighter chain's. At 25 ms an end-on press still never
+    # settles (15 mm/s after 4 s) (docs/physics.md "Timestep").
+    1: TaskVersion(Endoscope(pivot_stiffness_Nm_per_rad=0.03, insertion_max_force_n=INSERTION_MAX_FORCE_N,
+                             joint_armature=1e-3, joint_damping=0.01),
                    # load gains: median target motion over a load cycle as in the full stomach (docs/physics.md)
-                   (-1.0, 0.0, 0.0), FOUNDATION_PER_S2, 0.0125, (2.74, 2.80, 2.88), CONTROL_PERIOD_S,
+                   (-1.0, 0.0, 0.0), FOUNDATION_PER_S2, 0.02, (2.85, 2.91, 2.98), CONTROL_PERIOD_S,
                    CABLE_MM_PER_S * CONTROL_PERIOD_S / PAPER_ACTION_LIMIT,
                    INSERTION_MM_PER_S * CONTROL_PERIOD_S / PAPER_ACTION_LIMIT, fast_jacobian="dense"),
 }

@@ -29,8 +29,8 @@ class EndoscopeEnv(gym.Env):
 
     ## Action space
 
-    ``Box(-0.4, 0.4, (5,), float32)``, applied every control period of 100 ms (v1; 8 physics
-    steps of 12.5 ms in the fast stomach, 10 of 10 ms in the full one). Out-of-range values are
+    ``Box(-0.4, 0.4, (5,), float32)``, applied every control period of 100 ms (v1; 5 physics
+    steps of 20 ms in the fast stomach, 10 of 10 ms in the full one). Out-of-range values are
     clipped; NaN raises.
 
     | index | meaning | unit and scale (v1) |
@@ -95,7 +95,8 @@ class EndoscopeEnv(gym.Env):
       (the hiatus) instead of a rigid straight slide; the patient lies in the left lateral decubitus
       position (gravity towards the greater curvature); control at 10 Hz with insertion up to
       25 mm/s and cable stroke up to 4 mm/s, so an 80-step trial lasts 8 s (two breathing cycles);
-      fast stomach at 12.5 ms; targets are points on lumen triangles from the reachability map
+      fast stomach at 20 ms, bending hinges with armature and damping that keep it free of numerical
+      events; targets are points on lumen triangles from the reachability map
       (``python -m mjendo.targets map``): lists A and B mostly contact-aided, FE has its own list F.
     * v0: first release: rigid slide, upright gravity, 30 ms control period, 133 mm/s insertion,
       lumen-vertex targets within 20 mm of the free-space workspace.

@@ -246,12 +246,13 @@ class NavigationTask:
         self.steps += 1
         self.contact = sim.contact()
         ok = instability is None
-        out = mdp.outcome(self.cfg, sim.tip_pos()[None], self.target_pos()[None], self.origin, self.axis,
+        target = self.target_pos()
+        out = mdp.outcome(self.cfg, sim.tip_pos()[None], target[None], self.origin, self.axis,
                           self.contact.force[None], np.array([self.steps]), np.array([ok]))
         out = {k: v[0] for k, v in out.items()}
         self.peak_force = max(self.peak_force, float(out["force_n"]))
         success = bool(out["is_success"])
-        self.sim.set_target_marker(self.target_pos(), TARGET_YELLOW if success else TARGET_WHITE)
+        self.sim.set_target_marker(target, TARGET_YELLOW if success else TARGET_WHITE)
         info = {
             "distance_mm": float(out["distance_mm"]),
             "is_success": success,

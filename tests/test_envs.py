@@ -376,7 +376,7 @@ BAD_TASK_ARGS = [
     ({"max_steps": 0}, "max_steps must be a whole number >= 1"),
     ({"width": 0}, "width must be a whole number of pixels"),
     ({"height": 100000}, "height must be a whole number of pixels"),
-    ({"control_period_s": 0.03}, "not a multiple of the fast timestep 0.0125 s; use e.g. 0.025"),
+    ({"control_period_s": 0.03}, "not a multiple of the fast timestep 0.02 s; use e.g. 0.04"),
     ({"version": 7}, "unknown task version 7"),
     ({"target_list": "C"}, "unknown target_list 'C'"),
     ({"cable_mm": 2.0}, "unknown task argument"),

@@ -125,7 +125,6 @@ class Endoscope:
     # lets the chain run at the scene timestep without changing statics.
     joint_armature: float = 2e-5
     joint_damping: float = 2e-3  # N m s / rad
-    pivot_armature: float = 2e-5  # the cardia pivot's hinges (the tube's own inertia dominates there)
     cable_max_tension_n: float = 40.0
     cable_kp_n_per_m: float = 8000.0  # cable servo stiffness (position control)
     insertion_kp_n_per_m: float = 2000.0  # stiff insertion servo (a motorised feeder)
@@ -371,10 +370,10 @@ VERSIONS: dict[int, TaskVersion] = {
     # 2e-5 kg m^2: 39 Hz) sit above what any of these steps resolves; they rang under contact and set off
     # numerical events (driven into the wall, bang-bang: 0.09 % of steps above 10 N, the tip jumping 47 mm
     # in one control step, up to 3.9 m/s, at 12.5 ms). Armature 1e-3 kg m^2 (5.5 Hz, the chain still
-    # answers a cable command within a control step) and damping 0.01 N m s/rad on the bending hinges
-    # remove them: no step above 10 N, tip at most 0.75 m/s, at 20 ms; held presses settle (0.10 mm/s
-    # after 4 s) with forces within 11 % of the lighter chain's. At 25 ms an end-on press still never
-    # settles (15 mm/s after 4 s) (docs/physics.md "Timestep").
+    # answers a cable command within a control step; the cardia pivot's hinges too) and damping
+    # 0.01 N m s/rad on the bending hinges remove them: no step above 10 N, tip at most 0.67 m/s, at
+    # 20 ms; held presses settle (0.10 mm/s after 4 s) with forces within 11 % of the lighter chain's.
+    # At 25 ms an end-on press still never settles (15 mm/s after 4 s) (docs/physics.md "Timestep").
     1: TaskVersion(Endoscope(pivot_stiffness_Nm_per_rad=0.03, insertion_max_force_n=INSERTION_MAX_FORCE_N,
                              joint_armature=1e-3, joint_damping=0.01),
                    # load gains: median target motion over a load cycle as in the full stomach (docs/physics.md)

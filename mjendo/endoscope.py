@@ -72,7 +72,7 @@ def add_endoscope(spec: mujoco.MjSpec, cfg: Endoscope, entry: np.ndarray, axis: 
         for ax, tag in (([1, 0, 0], "x"), ([0, 1, 0], "y")):
             pivot.add_joint(name=f"{PIVOT}_{tag}", type=mujoco.mjtJoint.mjJNT_HINGE, axis=ax,
                             stiffness=cfg.pivot_stiffness_Nm_per_rad, damping=cfg.pivot_damping,
-                            armature=cfg.pivot_armature, range=[-lim, lim], limited=mujoco.mjtLimited.mjLIMITED_TRUE)
+                            armature=cfg.joint_armature, range=[-lim, lim], limited=mujoco.mjtLimited.mjLIMITED_TRUE)
         # The hiatus: a ring of short capsules around the tube, on the pivot, through which the tube slides.
         ring_r, bar_r, n_bars = radius + from_mm(cfg.hiatus_clearance_mm) + HIATUS_BAR_RADIUS, HIATUS_BAR_RADIUS, 8
         half = ring_r * np.tan(np.pi / n_bars)

@@ -24,6 +24,7 @@ import time
 from dataclasses import dataclass, replace
 from pathlib import Path
 
+import mujoco
 import numpy as np
 
 from mjendo import anatomy, scene
@@ -318,6 +319,26 @@ def spikes(version: int, episodes: int = 20, seed: int = 0, env: str = "DE", pus
             "tip_speed_p99_mm_s": float(np.percentile(v, 99)), "tip_speed_max_mm_s": float(v.max())}
 
 
+def list_motion(env: str, version: int | None = None) -> dict:
+    """How far the env's listed targets move between the two load states (mm): where each settles in the
+    second half of each half cycle (mean over the task's phase snapshots there), median and 90th percentile.
+    """
+    from mjendo.config import CURRENT_VERSION
+    from mjendo.task import NavigationTask
+
+    task = NavigationTask(env=env, version=CURRENT_VERSION if version is None else version)
+    m, d = task.sim.model, task.sim.data
+    pos = []
+    for state in task.start_states:
+        mujoco.mj_setState(m, d, state, mujoco.mjtState.mjSTATE_INTEGRATION)
+        mujoco.mj_forward(m, d)  # the flex's vertices follow its nodes in the position stage
+        pos.append(task.list_positions())
+    pos, n = np.array(pos), len(task.start_states)
+    shift = to_mm(np.linalg.norm(pos[n // 4:n // 2].mean(0) - pos[3 * n // 4:].mean(0), axis=1))
+    return {"env": env, "list": task.target_list, "targets": len(shift), "median_mm": float(np.median(shift)),
+            "p90_mm": float(np.percentile(shift, 90))}
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m mjendo.fidelity", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -339,7 +360,14 @@ def main(argv: list[str] | None = None) -> int:
     sp.add_argument("--versions", type=int, nargs="+", default=sorted(VERSIONS))
     sp.add_argument("--episodes", type=int, default=20)
     sp.add_argument("--push", type=float, default=0.5, help="chance that a step inserts (0.5: unbiased)")
+    lm = sub.add_parser("motion", help="how far the listed targets move between the two load states")
+    lm.add_argument("--envs", nargs="+", default=["DE", "UE1", "UE2"])
     args = ap.parse_args(argv)
+    if args.cmd == "motion":
+        for env in args.envs:
+            print(", ".join(f"{k} {x:.3g}" if isinstance(x, float) else f"{k} {x}"
+                            for k, x in list_motion(env).items()), flush=True)
+        return 0
     if args.cmd == "spikes":
         for v in args.versions:
             row = spikes(v, args.episodes, push=args.push)

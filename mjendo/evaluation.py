@@ -254,6 +254,19 @@ def per_target(trials: list[Trial]) -> list[dict]:
             for (c, e, k), ts in groups.items()]
 
 
+def by_class(targets: list[dict]) -> list[dict]:
+    """Success per cell over the free and over the contact-aided targets of the map (per_target rows)."""
+    cells: dict[tuple, dict] = {}
+    for r in targets:
+        if r["class"] in ("free", "contact_aided"):
+            c = cells.setdefault((r["controller"], r["env"]), {"free": [0, 0], "contact_aided": [0, 0]})
+            c[r["class"]][0] += r["successes"]
+            c[r["class"]][1] += r["trials"]
+    return [{"controller": c, "env": e, **{f"{k}_trials": n for k, (_, n) in v.items()},
+             **{f"{k}_sr": 100.0 * s / n if n else float("nan") for k, (s, n) in v.items()}}
+            for (c, e), v in cells.items()]
+
+
 def _fmt(x, nd=1):
     return "-" if x is None or (isinstance(x, float) and math.isnan(x)) else f"{x:.{nd}f}"
 
@@ -267,7 +280,7 @@ def _git_commit() -> str:
 
 
 def write_report(rows: list[dict], out: Path, command: str, wall_s: float, n: int, fidelity: str = "fast",
-                 made: list | None = None) -> Path:
+                 made: list | None = None, classes: list[dict] | None = None) -> Path:
     """report.md: ours next to the paper's tables, then every figure embedded with its caption."""
     stomach = {"fast": "the fast (reduced-order, calibrated) stomach", "full": "the full per-vertex FEM stomach"}
     lines = [
@@ -309,6 +322,15 @@ def write_report(rows: list[dict], out: Path, command: str, wall_s: float, n: in
                 f"{_fmt(r['force_at_success_n'], 2)} | {_fmt(100 * r['over_1n_share'], 2)} | "
                 f"{_fmt(100 * r['over_2n_share'], 2)} | {_fmt(r['median_target_motion_mm'], 2)} | "
                 f"{_fmt(r['median_duration_s'], 1)} |")
+    if classes:
+        lines += ["", "## Free and contact-aided targets", "",
+                  "Success % over the trials that aimed at free targets (reached in free space) and at "
+                  "contact-aided ones (10 mm or more beyond free-space reach, reached with the wall), by the "
+                  "reachability map's classes (docs/task.md); trials in brackets.", "",
+                  "| policy | env | free targets SR % | contact-aided targets SR % |", "|---|---|---|---|"]
+        for r in classes:
+            lines.append(f"| {r['controller']} | {r['env']} | {_fmt(r['free_sr'])} ({r['free_trials']}) | "
+                         f"{_fmt(r['contact_aided_sr'])} ({r['contact_aided_trials']}) |")
     if made:
         lines += ["", "## Figures", ""]
         for fig, text in made:
@@ -357,11 +379,12 @@ def evaluate(trials: int = 200, controllers=CONTROLLERS, workers: int = 2, out: 
     _write_csv(out / "trials.csv", [asdict(t) for t in all_trials])
     rows = summarize(all_trials)
     _write_csv(out / "summary.csv", rows)
-    _write_csv(out / "per_target.csv", per_target(all_trials))
+    targets = per_target(all_trials)
+    _write_csv(out / "per_target.csv", targets)
     from mjendo import figures
 
     made = figures.all_figures(rows, tip_paths, out)
-    report = write_report(rows, out, command, wall, trials, fidelity, made)
+    report = write_report(rows, out, command, wall, trials, fidelity, made, by_class(targets))
     print(report.read_text())
     print(f"wrote {out} in {wall / 60:.1f} min")
     return {"rows": rows, "wall_s": wall}

@@ -158,3 +158,15 @@ def test_trials_cover_every_target_equally_however_they_are_chunked():
     assert whole == chunked and set(whole) == set(listed)
     counts = [whole.count(t) for t in listed]
     assert max(counts) - min(counts) <= 1
+
+
+def test_success_by_target_class_counts_each_class_apart():
+    from mjendo.evaluation import by_class
+
+    rows = [{"controller": "E", "env": "DE", "target": 1, "class": "free", "trials": 2, "successes": 2},
+            {"controller": "E", "env": "DE", "target": 2, "class": "contact_aided", "trials": 2, "successes": 1},
+            {"controller": "E", "env": "DE", "target": 3, "class": "contact_aided", "trials": 2, "successes": 0},
+            {"controller": "E", "env": "DE", "target": 4, "class": "between", "trials": 5, "successes": 5}]
+    (row,) = by_class(rows)
+    assert row["free_sr"] == 100.0 and row["free_trials"] == 2
+    assert row["contact_aided_sr"] == 25.0 and row["contact_aided_trials"] == 4  # 'between' is neither

@@ -149,6 +149,7 @@ class BatchedNavigation:
         self.n = n_worlds
         with wp.ScopedDevice(self.wp_device):
             solved = with_solver(m, solver)
+            self.mjm = solved  # the MuJoCo model Warp holds (its Jacobian storage may differ from the CPU's)
             self.mw = mjw.put_model(solved)
             if hasattr(self.mw.opt, "warn_overflow"):
                 self.mw.opt.warn_overflow = 0  # Warp would print per world-step; _check_step counts instead

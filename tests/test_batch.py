@@ -282,9 +282,9 @@ def test_a_contact_acts_on_the_whole_scope_chain(fidelity):
     m, d = cpu.task.sim.model, cpu.task.sim.data
     load_cpu_state(batch, 0, d)
     batch._mjw.forward(batch.mw, batch.d)
-    warp = mujoco.MjData(m)
-    batch._mjw.get_data_into(warp, m, batch.d)
-    rows_c, rows_w = _normal_rows(m, d), _normal_rows(m, warp)
+    warp = mujoco.MjData(batch.mjm)  # Warp's model: the same physics, the Jacobian stored as Warp chose
+    batch._mjw.get_data_into(warp, batch.mjm, batch.d)
+    rows_c, rows_w = _normal_rows(m, d), _normal_rows(batch.mjm, warp)
     both = sorted(set(rows_c) & set(rows_w))
     assert both, (sorted(rows_c), sorted(rows_w))
     scope = ~np.isin(m.dof_bodyid, m.flex_nodebodyid if fidelity == "fast" else m.flex_vertbodyid)
@@ -301,14 +301,8 @@ def test_a_contact_acts_on_the_whole_scope_chain(fidelity):
                                    err_msg=f"contact {key}: the stomach's part")
 
 
-# Task version 1's scope (cardia pivot, 3 N feeder) held end-on against the far wall settles on the CPU (0.56 N
-# after 4 s) but keeps bouncing in MuJoCo Warp: contact lost every 4th control step, 0-1.15 N, the tip 4-8 mm
-# from the CPU's (docs/backends.md "Known differences"). Strict: the day it settles, this says so.
-V1_HELD_PRESS = pytest.mark.xfail(strict=True, reason="v1 held press bounces in MuJoCo Warp (docs/backends.md)")
-
-
 @pytest.mark.slow
-@pytest.mark.parametrize("fidelity", [pytest.param("fast", marks=V1_HELD_PRESS), "full"])
+@pytest.mark.parametrize("fidelity", ["fast", "full"])
 def test_a_held_press_settles_to_the_same_force(fidelity):
     # End-on into the far wall of the static stomach (insertion 140 mm), held 1 s: the wall's steady push on
     # the scope is a property of the end state, not of the path there (up to friction: held states are not

@@ -56,7 +56,6 @@ def per_stomach(name: str, fidelity: str) -> str:
 # Validation (choosing the seed to ship): trials in the policy's own training condition on seeds of their
 # own, disjoint from the evaluation trials (30,000,000+) and from training's periodic evaluations (10,000,000+).
 VALIDATION_SEED = 20_000_000
-VALIDATION_TRIALS = 100
 RUNNING_MARK = ".study_running"
 COMPARISONS = (("C", "B"), ("E", "D"), ("E", "A"))  # paper: force sensing (SE, DE training) and contact use
 
@@ -69,6 +68,7 @@ class StudyConfig:
     seeds: tuple[int, ...] = (0, 1, 2)
     timesteps: int | None = None  # None: each policy's budget in the training config
     trials: int = 200  # evaluation trials per environment and seed
+    validation_trials: int = 100  # per seed, in the training condition: picks the seed to ship
     fidelity: str = "fast"  # stomach the final policies are evaluated in
     envs: tuple[str, ...] | None = None  # None: the evaluation study's environments
     config: Path = paths.TRAINING_CONFIG
@@ -85,8 +85,8 @@ class StudyConfig:
             raise ConfigError(f"unknown policy {bad[0] if bad else ''!r}; valid: {', '.join(POLICY_NAMES)}")
         if not self.seeds or min(self.seeds) < 0 or len(set(self.seeds)) != len(self.seeds):
             raise ConfigError(f"seeds must be distinct whole numbers >= 0, got {list(self.seeds)}")
-        if self.trials < 1 or (self.timesteps is not None and self.timesteps < 1):
-            raise ConfigError("--trials and --timesteps must be >= 1")
+        if self.trials < 1 or self.validation_trials < 1 or (self.timesteps is not None and self.timesteps < 1):
+            raise ConfigError("--trials, --validation-trials and --timesteps must be >= 1")
         if self.cpus_per_trial <= 0 or self.gpus_per_trial < 0:
             raise ConfigError("--cpus-per-trial must be > 0 and --gpus-per-trial >= 0")
         for p in self.policies:
@@ -194,10 +194,11 @@ def validate(cfg: StudyConfig, policy: str, run: Path) -> dict:
     model = scene.fingerprint(cfg.fidelity)
     if path.exists():
         cached = json.loads(path.read_text())
-        if cached.get("fidelity") == cfg.fidelity and cached.get("model") == model:
+        if (cached.get("fidelity"), cached.get("model"), cached.get("trials")) == (cfg.fidelity, model,
+                                                                                   cfg.validation_trials):
             return cached
     env = train_config(cfg, policy, 0).env
-    seeds = [VALIDATION_SEED + i for i in range(VALIDATION_TRIALS)]
+    seeds = [VALIDATION_SEED + i for i in range(cfg.validation_trials)]
     trials, _ = run_trials(str(run), env, seeds, fidelity=cfg.fidelity)
     result = {"env": env, "fidelity": cfg.fidelity, "model": model, "trials": len(trials),
               "first_seed": VALIDATION_SEED,
@@ -418,7 +419,7 @@ def write_outputs(cfg: StudyConfig, rows: list[dict], command: str, wall_s: floa
                   "with these seeds and trials."]
     best = best_seeds(cfg)
     lines += ["", "## Validation: which seed is shipped", "",
-              f"{VALIDATION_TRIALS} trials per seed in the policy's training condition, on seeds "
+              f"{cfg.validation_trials} trials per seed in the policy's training condition, on seeds "
               f"{VALIDATION_SEED}.. (disjoint from the evaluation trials above).", "",
               "| policy | seed | validation SR % | final error mm | best |", "|---|---|---|---|---|"]
     for p in cfg.policies:
@@ -459,6 +460,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seeds", type=_ints, default=(0, 1, 2), help="comma-separated training seeds (default 0,1,2)")
     ap.add_argument("--timesteps", type=int, help="training budget per run (default: the config's)")
     ap.add_argument("--trials", type=int, default=200, help="evaluation trials per environment and seed")
+    ap.add_argument("--validation-trials", type=int, default=100,
+                    help="trials per seed in the training condition that pick the seed to ship")
     ap.add_argument("--fidelity", choices=list(FIDELITIES), default="fast", help="stomach to evaluate in")
     ap.add_argument("--envs", help="comma-separated subset of FE, SE, DE, UE1, UE2")
     ap.add_argument("--config", type=Path, default=paths.TRAINING_CONFIG, help="training config")
@@ -470,9 +473,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--ship-best", action="store_true",
                     help="copy each policy's best-by-validation seed to models/policies/")
     a = ap.parse_args(argv)
-    cfg = StudyConfig(tuple(a.policies.split(",")), a.seeds, a.timesteps, a.trials, a.fidelity,
-                      tuple(a.envs.split(",")) if a.envs else None, a.config, a.runs, a.out, a.cpus_per_trial,
-                      a.gpus_per_trial, a.address, a.ship_best)
+    cfg = StudyConfig(policies=tuple(a.policies.split(",")), seeds=a.seeds, timesteps=a.timesteps,
+                      trials=a.trials, validation_trials=a.validation_trials, fidelity=a.fidelity,
+                      envs=tuple(a.envs.split(",")) if a.envs else None, config=a.config, runs=a.runs, out=a.out,
+                      cpus_per_trial=a.cpus_per_trial, gpus_per_trial=a.gpus_per_trial, address=a.address,
+                      ship_best=a.ship_best)
     command = "python -m mjendo.study " + " ".join(argv if argv is not None else sys.argv[1:])
     return cli.run(lambda: study(cfg, command), ConfigError, PolicyError)
 

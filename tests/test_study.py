@@ -60,8 +60,8 @@ def test_a_tiny_grid_runs_on_ray_and_reports_intervals(tiny_config, tmp_path, mo
 
     from mjendo.study import StudyConfig, study
 
-    cfg = StudyConfig(policies=("D",), seeds=(1, 2), timesteps=256, trials=3, envs=("DE", "UE1"),
-                      config=tiny_config, runs=tmp_path / "runs", out=tmp_path / "study")
+    cfg = StudyConfig(policies=("D",), seeds=(1, 2), timesteps=256, trials=3, validation_trials=4,
+                      envs=("DE", "UE1"), config=tiny_config, runs=tmp_path / "runs", out=tmp_path / "study")
     try:
         out = study(cfg, command="test")
         assert ray.is_initialized()  # it went through Ray (a local cluster)
@@ -78,12 +78,12 @@ def test_a_tiny_grid_runs_on_ray_and_reports_intervals(tiny_config, tmp_path, mo
         assert (out / "seeds" / f"D_seed{seed}" / "meta.json").exists()
     assert (out / "seeds.png").stat().st_size > 5000 and "seeds.png" in (out / "report.md").read_text()
     # Each seed is validated on trials of its own, and the best one is named (shipped with --ship-best).
-    from mjendo.study import VALIDATION_TRIALS, best_seeds
+    from mjendo.study import best_seeds
 
     validation = {s: (out / "seeds" / f"D_seed{s}" / "study_validation.json") for s in (1, 2)}
     assert all(v.exists() for v in validation.values())
     best_seed, best = best_seeds(cfg)["D"]
-    assert best_seed in (1, 2) and best["trials"] == VALIDATION_TRIALS and best["env"] == "DE"
+    assert best_seed in (1, 2) and best["trials"] == cfg.validation_trials == 4 and best["env"] == "DE"
     assert f"| D | {best_seed} |" in (out / "report.md").read_text()
     # Finished trials are skipped when the study runs again: nothing is trained or evaluated again.
     before = (tmp_path / "runs" / "D" / "seed1" / "study_trials.csv").stat().st_mtime_ns
@@ -97,6 +97,20 @@ def test_a_tiny_grid_runs_on_ray_and_reports_intervals(tiny_config, tmp_path, mo
     from mjendo.study import _read_results
 
     assert _read_results(tmp_path / "runs" / "D" / "seed1", cfg) is not None
+    # A trial that fails inside Ray (here an unreadable checkpoint) stops the study with the task's own
+    # error, naming the seed; the finished seed keeps its results.
+    ckpts = tmp_path / "runs" / "D" / "seed4" / "checkpoints"
+    ckpts.mkdir(parents=True)
+    (ckpts / "model_128.zip").write_bytes(b"not a zip")
+    (ckpts / "vecnormalize_128.pkl").write_bytes(b"not a pickle")
+    broken = StudyConfig(policies=("D",), seeds=(1, 4), timesteps=256, trials=3, validation_trials=4,
+                         envs=("DE", "UE1"), config=tiny_config, runs=tmp_path / "runs", out=tmp_path / "study_broken")
+    try:
+        with pytest.raises(ConfigError, match=r"D seed 4 failed: checkpoint .*model_128.zip.* is unreadable"):
+            study(broken, command="test broken")
+    finally:
+        ray.shutdown()
+    assert (tmp_path / "runs" / "D" / "seed1" / "study_trials.csv").stat().st_mtime_ns == before
     monkeypatch.setattr(scene, "fingerprint", lambda fidelity="fast": "another model")
     assert _read_results(tmp_path / "runs" / "D" / "seed1", cfg) is None
 

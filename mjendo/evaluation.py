@@ -238,14 +238,19 @@ def summarize(trials: list[Trial]) -> list[dict]:
     return rows
 
 
-def per_target(trials: list[Trial]) -> list[dict]:
-    """Success per cell and target, with the target's class in the reachability map (version 1 targets)."""
+def target_classes() -> dict[int, str]:
+    """Class of every candidate point in the committed reachability map (empty without the map)."""
     from mjendo import targets
 
     try:
-        classes = {p["id"]: p["class"] for p in json.loads(targets.TARGETS_FILE.read_text())["points"]}
+        return {p["id"]: p["class"] for p in json.loads(targets.TARGETS_FILE.read_text())["points"]}
     except OSError:
-        classes = {}
+        return {}
+
+
+def per_target(trials: list[Trial]) -> list[dict]:
+    """Success per cell and target, with the target's class in the reachability map (version 1 targets)."""
+    classes = target_classes()
     groups: dict[tuple, list[Trial]] = {}
     for t in trials:
         groups.setdefault((t.controller, t.env, t.target), []).append(t)

@@ -365,6 +365,49 @@ def _over_targets(a: dict[int, list[dict]], b: dict[int, list[dict]], rng) -> tu
     return 100 * lo, 100 * hi
 
 
+def _column(trials: list[dict], name: str) -> np.ndarray:
+    return np.array([float(t[name]) for t in trials], float)
+
+
+def _class_sr(trials: list[dict], classes: dict[int, str], cls: str) -> float:
+    hit = [_bool(t["success"]) for t in trials if classes.get(int(t["target"])) == cls]
+    return 100.0 * float(np.mean(hit)) if hit else float("nan")
+
+
+def contact_and_motion(per_cell: dict) -> list[dict]:
+    """Per policy x env, pooled over seeds: success on free and contact-aided targets, how far the target
+    moved and how long a trial lasted (medians), contact share, steps above 1 N and 2 N, peak force."""
+    from mjendo.evaluation import target_classes
+
+    classes, out = target_classes(), []
+    for (pol, env), by_seed in per_cell.items():
+        ts = [t for s in sorted(by_seed) for t in by_seed[s]]
+        out.append({"policy": pol, "env": env, "trials": len(ts), "free_sr": _class_sr(ts, classes, "free"),
+                    "contact_aided_sr": _class_sr(ts, classes, "contact_aided"),
+                    "median_target_motion_mm": float(np.nanmedian(_column(ts, "target_motion_mm"))),
+                    "median_duration_s": float(np.nanmedian(_column(ts, "duration_s"))),
+                    "contact_share_pct": 100 * float(np.nanmean(_column(ts, "contact_share"))),
+                    "over_1n_pct": 100 * float(np.nanmean(_column(ts, "over_1n_share"))),
+                    "over_2n_pct": 100 * float(np.nanmean(_column(ts, "over_2n_share"))),
+                    "median_peak_force_n": float(np.nanmedian(_column(ts, "peak_force_n")))})
+    return out
+
+
+def per_target_rows(per_cell: dict) -> list[dict]:
+    """Success per policy, env and target, pooled over seeds (the target's class from the map)."""
+    from mjendo.evaluation import target_classes
+
+    classes, out = target_classes(), []
+    for (pol, env), by_seed in per_cell.items():
+        groups: dict[int, list[bool]] = {}
+        for s in sorted(by_seed):
+            for t in by_seed[s]:
+                groups.setdefault(int(t["target"]), []).append(_bool(t["success"]))
+        out += [{"policy": pol, "env": env, "target": k, "class": classes.get(k, ""), "trials": len(v),
+                 "success_pct": 100.0 * np.mean(v)} for k, v in sorted(groups.items())]
+    return out
+
+
 def _bool(x) -> bool:
     return x is True or str(x) == "True"
 
@@ -382,6 +425,9 @@ def write_outputs(cfg: StudyConfig, rows: list[dict], command: str, wall_s: floa
     summary, comparisons, per_cell = analyse(rows)
     _csv(out / "summary.csv", summary)
     _csv(out / "comparisons.csv", comparisons)
+    contact = contact_and_motion(per_cell)
+    _csv(out / "contact_and_motion.csv", contact)
+    _csv(out / "per_target.csv", per_target_rows(per_cell))
     seeds_dir = out / "seeds"
     for p, s in sorted({(r["controller"], int(r["seed_trained"])) for r in rows}):
         d = seeds_dir / f"{p}_seed{s}"
@@ -407,6 +453,18 @@ def write_outputs(cfg: StudyConfig, rows: list[dict], command: str, wall_s: floa
         lines.append(f"| {r['policy']} | {r['env']} | {r['seeds']} | {r['sr']:.1f} ({r['sr_low']:.1f}-"
                      f"{r['sr_high']:.1f}) | {r['sr_per_seed']} | {r['error_mm']:.1f} ({r['error_low']:.1f}-"
                      f"{r['error_high']:.1f}) | {r['mean_force_n']:.2f} |")
+    lines += ["", "## Contact and motion", "",
+              "Pooled over seeds. SR over the map's free and contact-aided targets; the target's motion during a "
+              "trial (farthest from where it was at the start) and the trial's simulated duration are medians; "
+              "contact and force shares are of steps; peak force is the median over trials. Success per target: "
+              "per_target.csv.", "",
+              "| policy | env | SR free % | SR contact-aided % | target motion mm | trial s | steps in contact % "
+              "| steps > 1 N % | steps > 2 N % | peak force N |", "|---|---|---|---|---|---|---|---|---|---|"]
+    for r in contact:
+        lines.append(f"| {r['policy']} | {r['env']} | {r['free_sr']:.1f} | {r['contact_aided_sr']:.1f} | "
+                     f"{r['median_target_motion_mm']:.1f} | {r['median_duration_s']:.1f} | "
+                     f"{r['contact_share_pct']:.1f} | {r['over_1n_pct']:.2f} | {r['over_2n_pct']:.2f} | "
+                     f"{r['median_peak_force_n']:.2f} |")
     if comparisons:
         lines += ["", "## The paper's comparisons", "",
                   "| comparison | env | difference, points | 95 % CI over seeds and trials | excludes 0 | "

@@ -77,6 +77,11 @@ def test_a_tiny_grid_runs_on_ray_and_reports_intervals(tiny_config, tmp_path, mo
         assert (out / "seeds" / f"D_seed{seed}" / "study_trials.csv").exists()
         assert (out / "seeds" / f"D_seed{seed}" / "meta.json").exists()
     assert (out / "seeds.png").stat().st_size > 5000 and "seeds.png" in (out / "report.md").read_text()
+    with open(out / "contact_and_motion.csv") as f:
+        contact = {(r["policy"], r["env"]): int(r["trials"]) for r in csv.DictReader(f)}
+    assert contact == {("D", "DE"): 6, ("D", "UE1"): 6} and "## Contact and motion" in (out / "report.md").read_text()
+    with open(out / "per_target.csv") as f:
+        assert sum(int(r["trials"]) for r in csv.DictReader(f)) == 12
     # Each seed is validated on trials of its own, and the best one is named (shipped with --ship-best).
     from mjendo.study import best_seeds
 
@@ -197,3 +202,22 @@ def test_a_study_without_ray_says_how_to_install_it(monkeypatch, capsys, tmp_pat
     err = capsys.readouterr().err
     assert "error: the study runs on Ray: install it with `pip install 'mjendo[study]'`" in err
     assert not any(tmp_path.iterdir())  # nothing trained, nothing written
+
+
+def test_contact_and_motion_pools_seeds_and_splits_by_class(monkeypatch):
+    from mjendo import evaluation, study
+
+    monkeypatch.setattr(evaluation, "target_classes", lambda: {1: "free", 2: "contact_aided"})
+
+    def row(target, success, motion, contact, peak):
+        return {"target": target, "success": str(success), "target_motion_mm": motion, "duration_s": 2.0,
+                "contact_share": contact, "over_1n_share": 0.1 * (peak > 1), "over_2n_share": 0.0, "peak_force_n": peak}
+
+    per_cell = {("E", "DE"): {0: [row(1, True, 1.0, 0.0, 0.0), row(2, False, 5.0, 0.5, 1.5)],
+                              1: [row(1, True, 2.0, 0.0, 0.0), row(2, True, 6.0, 1.0, 3.0)]}}
+    (r,) = study.contact_and_motion(per_cell)
+    assert (r["trials"], r["free_sr"], r["contact_aided_sr"]) == (4, 100.0, 50.0)
+    assert r["median_target_motion_mm"] == 3.5 and r["contact_share_pct"] == 37.5
+    assert r["over_1n_pct"] == pytest.approx(5.0) and r["median_peak_force_n"] == 0.75
+    targets = {(t["target"], t["class"]): (t["trials"], t["success_pct"]) for t in study.per_target_rows(per_cell)}
+    assert targets == {(1, "free"): (2, 100.0), (2, "contact_aided"): (2, 50.0)}

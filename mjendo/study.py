@@ -77,7 +77,7 @@ class StudyConfig:
     cpus_per_trial: float = 1.0
     gpus_per_trial: float = 0.0
     address: str | None = None
-    ship_best: bool = False  # copy each policy's best-by-validation seed to models/policies/
+    ship_best: bool = False  # ship each policy's best-by-validation seed, and publish every seed (publish())
 
     def check(self) -> None:
         bad = [p for p in self.policies if p not in POLICY_NAMES]
@@ -108,30 +108,51 @@ def finished(run: Path, budget: int) -> bool:
     return (run / artifacts.MODEL_FILE).exists() and int(meta.get("timesteps", 0)) >= budget
 
 
+def seed_folder(policy: str, seed: int) -> Path:
+    """Where a published study seed lives: its policy files and its study trials (``--ship-best``)."""
+    return paths.policies_dir() / policy / "seeds" / f"seed{seed}"
+
+
 def adopt_shipped(cfg: StudyConfig, policy: str, seed: int) -> bool:
-    """Use the shipped policy as this seed's run when it is exactly that run (same seed, task and budget).
+    """Use a committed policy as this seed's run when it is exactly that run (same seed, task and budget).
 
-    The budget is the run's configured total_timesteps (the shipped one trained for 1M steps is not a
-    2k-step smoke-test run).
-
-    The shipped folder holds the files of a finished run (without its
-    checkpoints), so the study need not train that seed again.
+    Candidates: the seed's published folder (``models/policies/<P>/seeds/seed<N>/``, with its study
+    trials, so a fresh clone re-reports the study without training or evaluating), then the shipped
+    policy. The budget is the run's configured total_timesteps (the shipped one trained for 1M steps is
+    not a 2k-step smoke-test run).
     """
     run, tc = run_folder(cfg, policy, seed), train_config(cfg, policy, seed)
-    shipped = paths.policies_dir() / policy
-    meta = artifacts.read_meta(shipped) if shipped.exists() else {}
-    budget = meta.get("training", {}).get("total_timesteps")
-    if run.exists() or meta.get("seed") != seed or budget != tc.total_timesteps:
+    if run.exists():
         return False
-    if meta.get("task") != asdict(tc.task_config()) or meta.get("init_from"):
-        return False
-    run.mkdir(parents=True)
-    for name in (artifacts.META_FILE, artifacts.CONFIG_FILE, artifacts.MODEL_FILE, artifacts.NORM_FILE,
-                 *artifacts.LOG_FILES):
-        if (shipped / name).exists():
-            shutil.copy2(shipped / name, run / name)
-    (run / "ADOPTED").write_text(f"copied from {shipped} by mjendo.study: the shipped policy is this seed's run\n")
-    return True
+    for source in (seed_folder(policy, seed), paths.policies_dir() / policy):
+        meta = artifacts.read_meta(source) if (source / artifacts.META_FILE).exists() else {}
+        if meta.get("seed") != seed or meta.get("training", {}).get("total_timesteps") != tc.total_timesteps:
+            continue
+        if meta.get("task") != asdict(tc.task_config()) or meta.get("init_from"):
+            continue
+        run.mkdir(parents=True)
+        for name in (artifacts.META_FILE, artifacts.CONFIG_FILE, artifacts.MODEL_FILE, artifacts.NORM_FILE,
+                     *artifacts.LOG_FILES, *(per_stomach(f, fid) for f in (RESULTS_FILE, VALIDATION_FILE)
+                                             for fid in FIDELITIES)):
+            if (source / name).exists():
+                shutil.copy2(source / name, run / name)
+        (run / "ADOPTED").write_text(f"copied from {source} by mjendo.study: that policy is this seed's run\n")
+        return True
+    return False
+
+
+def publish(cfg: StudyConfig) -> None:
+    """Ship each policy's best seed to models/policies/<P>/ and every seed, with its study trials, to
+    models/policies/<P>/seeds/seed<N>/ (model without optimizer moments, normalisation, meta, config)."""
+    best = best_seeds(cfg)
+    for p in cfg.policies:
+        for seed in cfg.seeds:
+            run = run_folder(cfg, p, seed)
+            dest = artifacts.ship(run, p, seed_folder(p, seed))
+            for name in (per_stomach(f, fid) for f in (RESULTS_FILE, VALIDATION_FILE) for fid in FIDELITIES):
+                if (run / name).exists():
+                    shutil.copy2(run / name, dest / name)
+        artifacts.ship(run_folder(cfg, p, best[p][0]), p)
 
 
 def eval_seeds(cfg: StudyConfig) -> list[int]:
@@ -486,8 +507,7 @@ def write_outputs(cfg: StudyConfig, rows: list[dict], command: str, wall_s: floa
             mark = ("shipped" if cfg.ship_best else "yes") if best[p][0] == seed else ""
             lines.append(f"| {p} | {seed} | {100 * v['success_rate']:.1f} | {v['mean_final_mm']:.1f} | {mark} |")
     if cfg.ship_best:
-        for p, (seed, _) in best.items():
-            artifacts.ship(run_folder(cfg, p, seed), p)
+        publish(cfg)
     lines += ["", f"![Success rate per seed (dots) and across seeds (bar, 95 % CI)]({fig.name})", "",
               "*Success rate of every training seed (dots) and the mean over seeds with its 95 % stratified-"
               "bootstrap interval (black), per environment.*", ""]
@@ -529,7 +549,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--gpus-per-trial", type=float, default=0.0)
     ap.add_argument("--address", help="Ray cluster (host:port or ray://host:10001); default: RAY_ADDRESS, else local")
     ap.add_argument("--ship-best", action="store_true",
-                    help="copy each policy's best-by-validation seed to models/policies/")
+                    help="copy each policy's best-by-validation seed to models/policies/<P>/ and every seed, "
+                         "with its study trials, to models/policies/<P>/seeds/seed<N>/")
     a = ap.parse_args(argv)
     cfg = StudyConfig(policies=tuple(a.policies.split(",")), seeds=a.seeds, timesteps=a.timesteps,
                       trials=a.trials, validation_trials=a.validation_trials, fidelity=a.fidelity,

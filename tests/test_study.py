@@ -1,6 +1,7 @@
 """The multi-seed study: the bootstrap on known answers, a tiny grid through Ray, resume after a kill, bad addresses."""
 
 import csv
+import shutil
 import signal
 import subprocess
 import sys
@@ -221,3 +222,23 @@ def test_contact_and_motion_pools_seeds_and_splits_by_class(monkeypatch):
     assert r["over_1n_pct"] == pytest.approx(5.0) and r["median_peak_force_n"] == 0.75
     targets = {(t["target"], t["class"]): (t["trials"], t["success_pct"]) for t in study.per_target_rows(per_cell)}
     assert targets == {(1, "free"): (2, 100.0), (2, "contact_aided"): (2, 50.0)}
+
+
+def test_a_published_seed_is_adopted_with_its_study_trials(tmp_path, monkeypatch):
+    # A fresh clone holds each study seed's policy and trials under models/policies/<P>/seeds/seed<N>/:
+    # the study adopts them as the run instead of training again (A seed 0 stands in for any seed).
+    from mjendo import artifacts, paths
+    from mjendo.study import RESULTS_FILE, StudyConfig, adopt_shipped, run_folder, seed_folder
+
+    policies = tmp_path / "policies"
+    monkeypatch.setenv("MJENDO_POLICIES", str(policies))
+    published = seed_folder("A", 0)
+    shutil.copytree(paths.MODELS / "policies" / "A", published)
+    (published / RESULTS_FILE).write_text("controller,env\n")
+    cfg = StudyConfig(policies=("A",), seeds=(0,), runs=tmp_path / "runs")
+    assert adopt_shipped(cfg, "A", 0)
+    run = run_folder(cfg, "A", 0)
+    assert (run / artifacts.MODEL_FILE).exists() and (run / RESULTS_FILE).exists() and (run / "ADOPTED").exists()
+    assert not adopt_shipped(cfg, "A", 0)  # the run exists now: never overwritten
+    # Another seed's files are not this seed's run.
+    assert not adopt_shipped(StudyConfig(policies=("A",), seeds=(1,), runs=tmp_path / "runs"), "A", 1)

@@ -7,6 +7,7 @@ import warnings
 
 import numpy as np
 import pytest
+from scipy.stats import binom
 
 from mjendo import artifacts
 from mjendo.config import PAPER_EVAL_STEPS
@@ -32,15 +33,28 @@ def test_every_shipped_policy_loads_and_reaches_a_target_in_its_environment(vers
                        version=version)
     ctrl = load_controller(str(folder), env.task)
     assert ctrl.n_obs == (15 if policy in "CE" else 11)
-    # Each shipped policy reaches 90 % or more of its own environment's targets in the evaluation; on six
-    # trials it never used it must succeed at least four times (at 90 %, 1.6 % of six-trial draws fail).
-    outcomes = []
+    # On six trials it never used, a policy must succeed as often as its own validation rate (the study's,
+    # published with its seed; 90 % where none is) makes in all but 2 % of six-trial draws, at least once, and
+    # must bring the tip to half its starting distance on average.
+    p = _validation_rate(folder)
+    least = max(1, int(binom.ppf(0.02, 6, p)))
+    outcomes, start, final = [], [], []
     for seed in range(900, 906):  # seeds the evaluation study never uses
+        env.reset(seed=seed)
+        start.append(env.task.distance_mm())
         info, _ = run(env, ctrl, seed=seed)
         outcomes.append(info["is_success"])
+        final.append(info["distance_mm"])
         if info["is_success"]:
             assert info["distance_mm"] < 3.0 and info["step"] <= PAPER_EVAL_STEPS
-    assert sum(outcomes) >= 4, f"policy {policy} reached {sum(outcomes)} of 6 targets"
+    assert sum(outcomes) >= least, f"policy {policy} reached {sum(outcomes)} of 6 targets (validation rate {p:.2f})"
+    assert np.mean(final) < 0.5 * np.mean(start), (start, final)
+
+
+def _validation_rate(folder) -> float:
+    seed = artifacts.read_meta(folder).get("seed")
+    path = folder / "seeds" / f"seed{seed}" / "study_validation.json"
+    return json.loads(path.read_text())["success_rate"] if path.exists() else 0.9
 
 
 def test_normalize_is_sb3s_vecnormalize():

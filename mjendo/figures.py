@@ -206,6 +206,29 @@ def study_seeds(summary: list[dict], out: Path) -> Path:
     return out
 
 
+def study_curves(runs: dict[str, list[Path]], out: Path) -> Path:
+    """Periodic evaluation (success rate vs timesteps) of every seed, one colour per policy: how far apart
+    the policies' learning is, seed by seed (each run's evaluations.csv)."""
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(7.5, 3.8))
+    for i, (policy, folders) in enumerate(runs.items()):
+        for k, folder in enumerate(folders):
+            ev = _read(Path(folder) / "evaluations.csv")
+            if ev:
+                smooth = np.convolve(ev["success_rate"], np.ones(3) / 3, mode="valid") if len(ev["timesteps"]) > 3 \
+                    else ev["success_rate"]
+                ax.plot(ev["timesteps"][len(ev["timesteps"]) - len(smooth):], 100 * smooth, color=f"C{i}",
+                        alpha=0.8, lw=1.2, label=policy if k == 0 else None)
+    ax.set(xlabel="timesteps", ylabel="success rate % (40 trials, mean of 3)", ylim=(-2, 102),
+           title="Periodic evaluation during training, every seed")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(out, dpi=120)
+    plt.close(fig)
+    return out
+
+
 def all_figures(rows: list[dict], paths: list[dict], out: Path) -> list[tuple[Path, str]]:
     """Every figure of the evaluation report into ``out``, each with the caption the report shows."""
     from mjendo.paths import policies_dir

@@ -149,7 +149,8 @@ def publish(cfg: StudyConfig) -> None:
         for seed in cfg.seeds:
             run = run_folder(cfg, p, seed)
             dest = artifacts.ship(run, p, seed_folder(p, seed))
-            for name in (per_stomach(f, fid) for f in (RESULTS_FILE, VALIDATION_FILE) for fid in FIDELITIES):
+            for name in ("evaluations.csv", *(per_stomach(f, fid) for f in (RESULTS_FILE, VALIDATION_FILE)
+                                              for fid in FIDELITIES)):
                 if (run / name).exists():
                     shutil.copy2(run / name, dest / name)
         artifacts.ship(run_folder(cfg, p, best[p][0]), p)
@@ -459,6 +460,9 @@ def write_outputs(cfg: StudyConfig, rows: list[dict], command: str, wall_s: floa
             if (run / name).exists():
                 shutil.copy2(run / name, d / name)
     fig = figures.study_seeds(summary, out / "seeds.png")
+    grid = sorted({(r["controller"], int(r["seed_trained"])) for r in rows})
+    curves = figures.study_curves({p: [seeds_dir / f"{q}_seed{s}" for q, s in grid if q == p]
+                                   for p in dict.fromkeys(q for q, _ in grid)}, out / "curves.png")
     lines = [
         "# mjendo study: the paper's comparisons over training seeds", "",
         f"Command: `{command}`  ",
@@ -510,7 +514,10 @@ def write_outputs(cfg: StudyConfig, rows: list[dict], command: str, wall_s: floa
         publish(cfg)
     lines += ["", f"![Success rate per seed (dots) and across seeds (bar, 95 % CI)]({fig.name})", "",
               "*Success rate of every training seed (dots) and the mean over seeds with its 95 % stratified-"
-              "bootstrap interval (black), per environment.*", ""]
+              "bootstrap interval (black), per environment.*", "",
+              f"![Periodic evaluation of every seed during training]({curves.name})", "",
+              "*Periodic evaluation during training (40 trials in the training condition every 20k steps, "
+              "mean of three), every seed (evaluations.csv of each run).*", ""]
     (out / "report.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
     print(f"wrote {out}")

@@ -78,6 +78,7 @@ def test_a_tiny_grid_runs_on_ray_and_reports_intervals(tiny_config, tmp_path, mo
         assert (out / "seeds" / f"D_seed{seed}" / "study_trials.csv").exists()
         assert (out / "seeds" / f"D_seed{seed}" / "meta.json").exists()
     assert (out / "seeds.png").stat().st_size > 5000 and "seeds.png" in (out / "report.md").read_text()
+    assert (out / "curves.png").stat().st_size > 5000 and "curves.png" in (out / "report.md").read_text()
     with open(out / "contact_and_motion.csv") as f:
         contact = {(r["policy"], r["env"]): int(r["trials"]) for r in csv.DictReader(f)}
     assert contact == {("D", "DE"): 6, ("D", "UE1"): 6} and "## Contact and motion" in (out / "report.md").read_text()

@@ -69,11 +69,12 @@ def commit() -> str | None:
 def task_meta(cfg: TaskConfig) -> dict:
     """The part of meta.json that says what task the policy acts in, and with which code and scenes."""
     import mjendo
+    from mjendo import targets
     from mjendo.scene import fingerprint
 
     return {"format": FORMAT, "task": asdict(cfg), "observation": observation_layout(cfg.force_obs, cfg.scope_obs),
             "mjendo_version": mjendo.__version__, "scene_fingerprint": fingerprint(cfg.fidelity, cfg.version),
-            "commit": commit()}
+            "targets_fingerprint": targets.fingerprint(cfg.version), "commit": commit()}
 
 
 def write_meta(directory: Path, meta: dict) -> None:
@@ -188,23 +189,30 @@ def load(directory: Path) -> Policy:
 
 
 def _warn_scene(directory: Path, meta: dict) -> None:
-    """Warn when the policy was trained in other scene files than the installed ones (physics changed)."""
+    """Warn when the policy was trained in other scene files or on other target lists than the installed ones."""
     import warnings
 
+    from mjendo import targets
     from mjendo.scene import fingerprint
 
-    trained = meta.get("scene_fingerprint")
     task = trained_task(meta)
-    if trained is None or "fidelity" not in task:
+    if "fidelity" not in task:
         return
-    try:
-        now = fingerprint(task["fidelity"], int(task["version"]))
-    except (OSError, ConfigError):
-        return
-    if now != trained:
-        warnings.warn(f"policy {directory} was trained in scenes {trained}, the installed scenes are {now}: "
-                      "the physics changed since; retrain it or check out the commit in its meta.json",
-                      RuntimeWarning, stacklevel=3)
+    checks = [("scene_fingerprint", "scenes", "the physics changed since",
+               lambda: fingerprint(task["fidelity"], int(task["version"]))),
+              ("targets_fingerprint", "target lists", "the targets were drawn again since (make targets)",
+               lambda: targets.fingerprint(int(task["version"])))]
+    for key, what, why, installed in checks:
+        trained = meta.get(key)
+        if trained is None:
+            continue
+        try:
+            now = installed()
+        except (OSError, ConfigError):
+            continue
+        if now != trained:
+            warnings.warn(f"policy {directory} was trained on {what} {trained}, the installed {what} are {now}: "
+                          f"{why}; retrain it or check out the commit in its meta.json", RuntimeWarning, stacklevel=3)
 
 
 def resolve(spec: str) -> Path:

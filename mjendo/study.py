@@ -34,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mjendo import artifacts, cli, paths, scene, stats
+from mjendo import artifacts, cli, paths, scene, stats, targets
 from mjendo.artifacts import PolicyError
 from mjendo.config import CONDITIONS, FIDELITIES, POLICY_NAMES, ConfigError
 from mjendo.evaluation import EVAL_SEED_BASE, cells, run_trials
@@ -169,11 +169,16 @@ def _read_results(run: Path, cfg: StudyConfig) -> list[dict] | None:
         rows = list(csv.DictReader(f))
     envs = {r["env"] for r in rows}
     want = {e for _, e in _cells(cfg, rows[0]["controller"] if rows else "")}
-    model = scene.fingerprint(cfg.fidelity)
+    model = task_key(cfg)
     if not rows or any(r["fidelity"] != cfg.fidelity or r.get("model") != model for r in rows) \
             or envs != want or len(rows) != len(want) * cfg.trials:
         return None  # another study's evaluation, or one on other scene files: evaluate again
     return rows
+
+
+def task_key(cfg: StudyConfig) -> str:
+    """What cached trials were measured on: the scene files and the target lists (both fingerprinted)."""
+    return f"{scene.fingerprint(cfg.fidelity)}-{targets.fingerprint()}"
 
 
 def _cells(cfg: StudyConfig, policy: str) -> list[tuple[str, str]]:
@@ -198,7 +203,7 @@ def trial(cfg: StudyConfig, policy: str, seed: int) -> list[dict]:
     try:
         if not finished(run, train_config(cfg, policy, seed).total_timesteps):
             train(policy, cfg.timesteps, seed, out=cfg.runs, config_file=cfg.config, progress=False)
-        rows, model = [], scene.fingerprint(cfg.fidelity)
+        rows, model = [], task_key(cfg)
         for _, env in _cells(cfg, policy):
             trials, _ = run_trials(str(run), env, eval_seeds(cfg), fidelity=cfg.fidelity)
             rows += [{**asdict(t), "controller": policy, "seed_trained": seed, "fidelity": cfg.fidelity,
@@ -213,7 +218,7 @@ def trial(cfg: StudyConfig, policy: str, seed: int) -> list[dict]:
 def validate(cfg: StudyConfig, policy: str, run: Path) -> dict:
     """Success rate and mean error on the validation trials in the training condition (cached in the run)."""
     path = run / per_stomach(VALIDATION_FILE, cfg.fidelity)
-    model = scene.fingerprint(cfg.fidelity)
+    model = task_key(cfg)
     if path.exists():
         cached = json.loads(path.read_text())
         if (cached.get("fidelity"), cached.get("model"), cached.get("trials")) == (cfg.fidelity, model,

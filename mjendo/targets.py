@@ -4,19 +4,24 @@ A target is a point on a lumen triangle (three vertex ids and barycentric weight
 the wall. ``python -m mjendo.targets map`` measures, for candidate points spread over the whole lumen,
 
 * the **free-space distance**: the closest the tip comes with the stomach removed (FE), over a dense
-  quasi-static sweep of insertion x bending direction x bending magnitude and over the same moving
-  strategies as below (the tube sags over about a second, so a moving scope reaches further);
-* the **reach with the wall**: the closest the tip comes in the static stomach (SE), over scripted
-  insertions at fixed bending (the tube rides along the wall), seeded random exploration with contact
-  and two goal-conditioned passes (the damped-least-squares controller aimed at every point still
-  unreached, with 20 % and 40 % random actions);
+  quasi-static sweep of insertion x bending direction x bending magnitude and over moving strategies
+  (scripted insertions, the demonstrators below, seeded random exploration and the damped-least-squares
+  controller aimed at every region still unreached), none of them bound to a trial's length: the tube
+  sags over about a second, so a moving scope reaches further, and a longer search only makes the
+  contact-aided class more conservative;
+* the **reach with the wall within a trial**: the closest the tip comes within one 80-step evaluation
+  trial, over a family of scripted demonstrators (bend while inserting at full speed, then optionally
+  turn the bending at depth so the tube, lying on the wall, carries the tip round), in the static
+  stomach (SE) and from each of four phases of the breathing load (DE): a target counts as reachable only
+  if a demonstrator gets there in time from every start, so a policy's success rate can reach 100 %.
 
-classifies every point (free: free-space distance < 3 mm; contact-aided: >= 10 mm and reached with the
-wall within 3 mm; between: 3-10 mm; out of reach: the rest), records for every contact-aided point what
-the contact-blind DLS controller aimed at it achieves in SE (``naive_mm``), and draws the lists: F (the free points,
-FE's own targets), A (training) and B (held out), A and B interleaved over the wall with about two
-thirds contact-aided. It writes ``models/stomach/targets.json``. Task version 0 used lumen vertices
-(``stomach.json``'s lists); :func:`load` serves both.
+Classes: free (free-space distance < 3 mm); contact-aided (>= 10 mm, and reached with the wall within
+3 mm in SE and in every DE phase); between (3-10 mm); out of reach (the rest). The map also records for
+every contact-aided point what the contact-blind DLS controller aimed at it achieves in an SE trial
+(``naive_mm``), and draws the lists: F (the free points, FE's own targets), A (training) and B (held
+out), A and B interleaved over the wall with about two thirds contact-aided. It writes
+``models/stomach/targets.json``. Task version 0 used lumen vertices (``stomach.json``'s lists);
+:func:`load` serves both.
 """
 
 from __future__ import annotations
@@ -30,7 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from mjendo import anatomy, cli, paths
-from mjendo.config import CURRENT_VERSION, PAPER_SUCCESS_MM, ConfigError
+from mjendo.config import CURRENT_VERSION, PAPER_EVAL_STEPS, PAPER_SUCCESS_MM, ConfigError
 from mjendo.units import from_mm, to_mm
 
 TARGETS_FILE = paths.STOMACH_DIR / "targets.json"
@@ -82,12 +87,25 @@ def load(version: int = CURRENT_VERSION, path: Path = TARGETS_FILE) -> TargetTab
                        np.array([p["class"] for p in pts], dtype=object))
 
 
+def fingerprint(version: int = CURRENT_VERSION, path: Path = TARGETS_FILE) -> str:
+    """Short hash of a task version's target lists (ids, triangles, weights): a policy and its results name
+    the targets they were trained and evaluated on, as the scene fingerprint names the physics."""
+    import hashlib
+
+    table = load(version, path)
+    listed = {k: [[int(i), table.tris[r].tolist(), np.round(table.bary[r], 6).tolist()]
+                  for i, r in zip(v, table.rows(v), strict=True)] for k, v in sorted(table.lists.items())}
+    return hashlib.sha256(json.dumps(listed).encode()).hexdigest()[:12]
+
+
 # --------------------------------------------------------------------------
 # Candidates and measurement.
 
-# Seven points per lumen triangle: centroid, towards each corner, towards each edge's midpoint.
-BARY_SAMPLES = np.array([[1 / 3, 1 / 3, 1 / 3], [2 / 3, 1 / 6, 1 / 6], [1 / 6, 2 / 3, 1 / 6], [1 / 6, 1 / 6, 2 / 3],
-                         [5 / 12, 5 / 12, 1 / 6], [1 / 6, 5 / 12, 5 / 12], [5 / 12, 1 / 6, 5 / 12]])
+# Fifteen points per lumen triangle: the interior nodes of its 7-fold subdivision, (i, j, k) / 7 with
+# i, j, k >= 1 (no point on an edge, so neighbouring triangles share none); about 3 mm apart on the
+# ~20 mm triangles, the success distance, so the lists can hold 50 or more targets each.
+GRID = 7
+BARY_SAMPLES = np.array([[i, j, GRID - i - j] for i in range(1, GRID) for j in range(1, GRID - i)]) / GRID
 
 
 def lumen_triangles(st: anatomy.Stomach) -> np.ndarray:
@@ -97,7 +115,7 @@ def lumen_triangles(st: anatomy.Stomach) -> np.ndarray:
 
 
 def candidates(st: anatomy.Stomach) -> tuple[np.ndarray, np.ndarray]:
-    """Candidate points: seven per lumen triangle (BARY_SAMPLES), away from the cardia."""
+    """Candidate points: fifteen per lumen triangle (BARY_SAMPLES), away from the cardia."""
     tris = lumen_triangles(st)
     t = np.repeat(tris, len(BARY_SAMPLES), axis=0)
     b = np.tile(BARY_SAMPLES, (len(tris), 1))
@@ -110,10 +128,14 @@ def _closest(best: np.ndarray, tip: np.ndarray, points: np.ndarray) -> None:
     np.minimum(best, np.linalg.norm(points - tip, axis=1), out=best)
 
 
+def _ring(phi: float) -> np.ndarray:
+    """Unit cable pattern bending towards ``phi`` (rad about the tube)."""
+    return np.array([np.cos(phi), -np.cos(phi), np.sin(phi), -np.sin(phi)])
+
+
 def _pulls(direction: float, magnitude: float) -> np.ndarray:
     """Cable pulls (m) bending towards ``direction`` (rad about the tube): pull one side, pay out the other."""
-    c, s = np.cos(direction), np.sin(direction)
-    return magnitude * np.array([c, -c, s, -s])
+    return magnitude * _ring(direction)
 
 
 def free_tips(version: int, progress: bool = True) -> np.ndarray:
@@ -150,19 +172,38 @@ def free_sweep(version: int, points: np.ndarray, progress: bool = True) -> np.nd
 
 
 SCRIPTS = [(d, m) for d in np.linspace(0, 2 * np.pi, 12, endpoint=False) for m in (0.0, 0.15, 0.3, 0.4)]
+# Demonstrators: (bending direction, bending rate over the first 12 steps while inserting, turn of the
+# bending at depth: 0 none, +-1 a quarter turn either way, the step the turn starts). Every one inserts at
+# full speed throughout: the deep targets need about 50 of a trial's 80 steps of insertion.
+DEMOS = [(d, m, 0, 0) for d in np.linspace(0, 2 * np.pi, 12, endpoint=False) for m in (0.0, 0.2, 0.4)] + \
+    [(d, m, turn, k0) for d in np.linspace(0, 2 * np.pi, 12, endpoint=False) for m in (0.0, 0.2, 0.4)
+     for turn in (1, -1) for k0 in (40, 60)]
+PHASES = 4  # DE start phases (of the load cycle) every contact-aided point must be reached from
 AIM_NOISE = (0.2, 0.4)  # share of random actions in the aimed passes: the second pass explores more
-N_STEPS = 128
+N_STEPS = 128  # free-space strategies: the training episode's length (longer than a trial: conservative)
+TRIAL_STEPS = PAPER_EVAL_STEPS  # reach with the wall: within one evaluation trial
 
 
-def _reach_job(args) -> np.ndarray:
-    """One worker's part of a reach measurement in ``env`` (SE: with the wall; FE: free space, dynamically).
+def demo_action(demo: tuple, k: int) -> np.ndarray:
+    """Action of demonstrator ``demo`` (an entry of DEMOS) at step ``k``."""
+    direction, rate, turn, k0 = demo
+    bend = _ring(direction) * rate if k < 12 else np.zeros(4)
+    if turn and k >= k0:
+        bend = 0.4 * _ring(direction + turn * np.pi / 2)
+    return np.concatenate([bend, [0.4]])
 
-    Kinds: "script" (bend, insert all the way at full speed, sweep the bending round at depth), "random"
-    (piecewise-constant random actions), "aimed" (the DLS controller aimed at one point with a share of
-    random actions; every point's closest approach counts) and "naive" (the DLS controller aimed at one
-    point, no noise; only that point's closest approach counts: what aiming alone achieves).
+
+def _reach_job(args) -> tuple[int, np.ndarray]:
+    """One worker's part of a reach measurement in ``env`` (SE/DE: with the wall; FE: free space, moving):
+    its chunk number and the closest approach (m) of each of its episodes to each point.
+
+    Kinds: "script" (bend, insert all the way at full speed, sweep the bending round at depth), "demo"
+    (an entry of DEMOS for ``steps`` steps), "random" (piecewise-constant random actions), "aimed" (the
+    DLS controller aimed at one point with a share of random actions; every point's closest approach
+    counts) and "naive" (the DLS controller aimed at one point, no noise; only that point's closest
+    approach counts: what aiming alone achieves). ``phase``: the load phase every episode starts at.
     """
-    version, env, tris, bary, kind, items, seed = args
+    chunk, version, env, tris, bary, kind, items, seed, steps, phase = args
     import torch
 
     from mjendo.baseline import DLSController
@@ -174,8 +215,10 @@ def _reach_job(args) -> np.ndarray:
     task = NavigationTask(env=env, version=version, max_steps=10**6, randomize_phase=False, table=table,
                           target_list="A")
     sim = task.sim
-    best = np.full(len(tris), np.inf)
+    rows = np.full((len(items), len(tris)), np.inf)
     rng = np.random.default_rng(seed)
+    if phase is not None:
+        phase = phase * len(task.start_states) // PHASES
 
     def record(only: int | None = None) -> None:
         if only is None:
@@ -183,22 +226,24 @@ def _reach_job(args) -> np.ndarray:
         else:
             best[only] = min(best[only], float(np.linalg.norm(sim.tip_pos() - task.target_pos())))
 
-    def ring(phi: float) -> np.ndarray:
-        return np.array([np.cos(phi), -np.cos(phi), np.sin(phi), -np.sin(phi)])
-
-    for item in items:
-        task.reset(rng)
+    for j, item in enumerate(items):
+        best = rows[j]
+        task.reset(rng, phase)
         if kind == "script":
             direction, mag = item
-            for k in range(N_STEPS):
-                task.step(np.concatenate([ring(direction) * mag if k < 12 else np.zeros(4), [0.4 * (k >= 12)]]))
+            for k in range(steps):
+                task.step(np.concatenate([_ring(direction) * mag if k < 12 else np.zeros(4), [0.4 * (k >= 12)]]))
                 record()
             for k in range(48):
-                task.step(np.concatenate([0.4 * ring(direction + 2 * np.pi * k / 48), [0.0]]))
+                task.step(np.concatenate([0.4 * _ring(direction + 2 * np.pi * k / 48), [0.0]]))
+                record()
+        elif kind == "demo":
+            for k in range(steps):
+                task.step(demo_action(item, k))
                 record()
         elif kind == "random":
             a = np.zeros(5)
-            for k in range(N_STEPS):
+            for k in range(steps):
                 if k % 8 == 0:
                     a = rng.uniform(-0.4, 0.4, 5)
                     a[4] = rng.uniform(-0.1, 0.4)
@@ -211,59 +256,84 @@ def _reach_job(args) -> np.ndarray:
             task.set_target(int(target))
             dls = DLSController(task)
             dls.reset(task)
-            for _k in range(N_STEPS):
+            for _k in range(steps):
                 res = task.step(rng.uniform(-0.4, 0.4, 5) if rng.random() < noise else dls.act(None, task))
                 record(int(target) if kind == "naive" else None)
                 if res.terminated:
                     break
-    return best
+    return chunk, rows
 
 
-def reach(env: str, version: int, tris: np.ndarray, bary: np.ndarray, episodes: int, seed: int,
-          progress: bool = True, workers: int = 2, start: np.ndarray | None = None) -> np.ndarray:
-    """Closest approach (m) of the tip to each point in ``env``, over every strategy (see _reach_job).
+def representatives(tris: np.ndarray, bary: np.ndarray) -> np.ndarray:
+    """For each lumen triangle, its candidate nearest the centroid (what the aimed passes aim at)."""
+    rep: dict[tuple, int] = {}
+    for i in np.argsort(-bary.min(axis=1), kind="stable"):
+        rep.setdefault(tuple(tris[i]), int(i))
+    return np.array(sorted(rep.values()), dtype=np.int64)
 
-    Scripted insertions and seeded random exploration first; then two aimed passes at every point still
-    beyond 3 mm. Work is spread over ``workers`` processes; the result does not depend on their number.
-    ``start``: closest approaches already measured (e.g. the quasi-static sweep), to aim only where needed.
+
+def free_reach(version: int, tris: np.ndarray, bary: np.ndarray, episodes: int, seed: int, progress: bool = True,
+               workers: int = 2, start: np.ndarray | None = None) -> np.ndarray:
+    """Closest approach (m) of the tip to each point in free space (FE), over every moving strategy.
+
+    Scripted insertions, the demonstrators and seeded random exploration first; then two aimed passes at
+    the triangles that still hold a point beyond 3 mm. ``start``: closest approaches already measured (the
+    quasi-static sweep). Work is spread over ``workers`` processes; the result does not depend on their number.
     """
     best = np.full(len(tris), np.inf) if start is None else start.copy()
-    for phase, (kind, items) in enumerate([("script", SCRIPTS), ("random", list(range(episodes)))]):
-        np.minimum(best, _pool(env, version, tris, bary, kind, items, seed * 1000 + phase * 100, progress,
-                               workers), out=best)
-    for phase, noise in enumerate(AIM_NOISE, start=2):
-        unreached = [(int(t), noise) for t in np.flatnonzero(best >= from_mm(PAPER_SUCCESS_MM))]
-        np.minimum(best, _pool(env, version, tris, bary, "aimed", unreached, seed * 1000 + phase * 100, progress,
-                               workers), out=best)
+    for phase, (kind, items) in enumerate([("script", SCRIPTS), ("demo", DEMOS), ("random", list(range(episodes)))]):
+        np.minimum(best, _pool("FE", version, tris, bary, kind, items, seed * 1000 + phase * 100, progress,
+                               workers, N_STEPS).min(0), out=best)
+    reps = representatives(tris, bary)
+    for phase, noise in enumerate(AIM_NOISE, start=3):
+        open_tris = {tuple(t) for t in tris[best >= from_mm(PAPER_SUCCESS_MM)]}
+        aims = [(int(i), noise) for i in reps if tuple(tris[i]) in open_tris]
+        np.minimum(best, _pool("FE", version, tris, bary, "aimed", aims, seed * 1000 + phase * 100, progress,
+                               workers, N_STEPS).min(0), out=best)
     return best
+
+
+def wall_reach(version: int, tris: np.ndarray, bary: np.ndarray, seed: int, progress: bool = True,
+               workers: int = 2) -> tuple[np.ndarray, np.ndarray]:
+    """Closest approach (m) of every demonstrator to every point within a trial, in SE then in each DE phase:
+    shape (1 + PHASES, len(DEMOS), points)."""
+    runs = [("SE", None)] + [("DE", p) for p in range(PHASES)]
+    return np.array([_pool(env, version, tris, bary, "demo", DEMOS, seed * 1000 + 500 + k, progress, workers,
+                           TRIAL_STEPS, phase=p) for k, (env, p) in enumerate(runs)])
 
 
 def naive_reach(version: int, tris: np.ndarray, bary: np.ndarray, points, seed: int, progress: bool = True,
                 workers: int = 2) -> np.ndarray:
-    """Closest approach (m) of the contact-blind DLS controller aimed at each of ``points`` in SE (no noise)."""
+    """Closest approach (m) of the contact-blind DLS controller aimed at each of ``points`` in an SE trial."""
     return _pool("SE", version, tris, bary, "naive", [(int(t), 0.0) for t in points], seed * 1000 + 900, progress,
-                 workers)
+                 workers, TRIAL_STEPS).min(0)
 
 
-def _pool(env, version, tris, bary, kind, items, seed, progress, workers) -> np.ndarray:
+def _pool(env, version, tris, bary, kind, items, seed, progress, workers, steps, phase=None) -> np.ndarray:
+    """Closest approach (m) of each episode (one per item, in order) to each point: (len(items), points)."""
     from multiprocessing import get_context
 
     from tqdm import tqdm
 
     chunks = 16
-    best = np.full(len(tris), np.inf)
-    jobs = [(version, env, tris, bary, kind, items[i::chunks], seed + i) for i in range(chunks)]
+    rows = np.full((len(items), len(tris)), np.inf)
+    if not items:
+        return rows
+    jobs = [(i, version, env, tris, bary, kind, items[i::chunks], seed + i, steps, phase) for i in range(chunks)]
+    label = f"{env} {kind} ({len(items)})" + ("" if phase is None else f" phase {phase + 1}/{PHASES}")
     with get_context("spawn").Pool(workers) as pool:
-        for part in tqdm(pool.imap_unordered(_reach_job, jobs), total=len(jobs), desc=f"{env} {kind} ({len(items)})",
-                         disable=not progress):
-            np.minimum(best, part, out=best)
-    return best
+        for i, part in tqdm(pool.imap_unordered(_reach_job, jobs), total=len(jobs), desc=label,
+                            disable=not progress):
+            rows[i::chunks] = part
+    return rows
 
 
-def classify(free_mm: np.ndarray, wall_mm: np.ndarray) -> np.ndarray:
+def classify(free_mm: np.ndarray, wall_mm: np.ndarray, phase_mm: np.ndarray) -> np.ndarray:
+    """Each point's class (module docstring) from its free-space, SE and worst-DE-phase distances (mm)."""
     cls = np.full(len(free_mm), "out_of_reach", dtype=object)
     cls[(free_mm >= FREE_MM) & (free_mm < CONTACT_AIDED_MM)] = "between"
-    cls[(free_mm >= CONTACT_AIDED_MM) & (wall_mm < PAPER_SUCCESS_MM)] = "contact_aided"
+    reached = (wall_mm < PAPER_SUCCESS_MM) & (phase_mm < PAPER_SUCCESS_MM)
+    cls[(free_mm >= CONTACT_AIDED_MM) & reached] = "contact_aided"
     cls[free_mm < FREE_MM] = "free"
     return cls
 
@@ -320,9 +390,12 @@ def make_map(episodes: int, seed: int, progress: bool = True) -> dict:
     static_mm = to_mm(free_sweep(CURRENT_VERSION, rest, progress))
     # Free space reaches further moving than settling (the tube sags over about a second): the free-space
     # distance is the closer of the quasi-static sweep and the same strategies as with the wall, in FE.
-    free_mm = to_mm(reach("FE", CURRENT_VERSION, tris, bary, episodes, seed, progress, start=from_mm(static_mm)))
-    wall_mm = to_mm(reach("SE", CURRENT_VERSION, tris, bary, episodes, seed, progress))
-    cls = classify(free_mm, wall_mm)
+    free_mm = to_mm(free_reach(CURRENT_VERSION, tris, bary, episodes, seed, progress, start=from_mm(static_mm)))
+    demos = wall_reach(CURRENT_VERSION, tris, bary, seed, progress)  # (SE + DE phases, demonstrators, points)
+    per_run = to_mm(demos.min(1))
+    wall_mm, phase_mm = per_run[0], per_run[1:].max(0)
+    which = demos.argmin(1)  # the demonstrator that comes closest, per run and point
+    cls = classify(free_mm, wall_mm, phase_mm)
     aided = np.flatnonzero(cls == "contact_aided")
     naive_mm = np.full(len(tris), np.nan)
     naive_mm[aided] = to_mm(naive_reach(CURRENT_VERSION, tris, bary, aided, seed, progress)[aided])
@@ -330,7 +403,8 @@ def make_map(episodes: int, seed: int, progress: bool = True) -> dict:
     counts = {c: int(np.sum(cls == c)) for c in ("free", "between", "contact_aided", "out_of_reach")}
     info = {
         "rule": (f"free: free-space distance < {FREE_MM} mm; contact_aided: >= {CONTACT_AIDED_MM} mm and reached "
-                 f"with the wall within {PAPER_SUCCESS_MM} mm; listed points at least {SPACING_MM} mm apart"),
+                 f"with the wall within {PAPER_SUCCESS_MM} mm within {TRIAL_STEPS} steps by a demonstrator, in SE "
+                 f"and from each of {PHASES} DE load phases; listed points at least {SPACING_MM} mm apart"),
         "command": f"python -m mjendo.targets map --episodes {episodes} --seed {seed}",
         "classes": counts,
         "seconds": round(time.time() - t0, 1),
@@ -339,8 +413,10 @@ def make_map(episodes: int, seed: int, progress: bool = True) -> dict:
     info["contact_aided_reached_by_aiming"] = int(np.sum(naive_mm[aided] < PAPER_SUCCESS_MM))
     points = [{"id": i, "tri": [int(x) for x in tris[i]], "bary": [round(float(x), 6) for x in bary[i]],
                "static_mm": round(float(static_mm[i]), 2), "free_mm": round(float(free_mm[i]), 2),
-               "wall_mm": round(float(wall_mm[i]), 2),
-               "naive_mm": None if np.isnan(naive_mm[i]) else round(float(naive_mm[i]), 2), "class": cls[i]}
+               "wall_mm": round(float(wall_mm[i]), 2), "phase_mm": round(float(phase_mm[i]), 2),
+               "naive_mm": None if np.isnan(naive_mm[i]) else round(float(naive_mm[i]), 2), "class": cls[i],
+               # index into DEMOS of the demonstrator that reaches a contact-aided point, in SE then per DE phase
+               "demos": [int(k) for k in which[:, i]] if cls[i] == "contact_aided" else None}
               for i in range(len(tris))]
     return {"version": CURRENT_VERSION, "info": info, "lists": lists, "points": points}
 
@@ -370,7 +446,7 @@ def main(argv: list[str] | None = None) -> int:
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = ap.add_subparsers(dest="cmd", required=True)
     m = sub.add_parser("map", help="measure every candidate point and write the target lists (targets.json)")
-    m.add_argument("--episodes", type=int, default=400, help="random exploration episodes with contact")
+    m.add_argument("--episodes", type=int, default=400, help="random exploration episodes in free space")
     m.add_argument("--seed", type=int, default=0)
     m.add_argument("--out", type=Path, default=TARGETS_FILE)
     f = sub.add_parser("figure", help="free-space workspaces (versions 0 and 1) and the classified points")

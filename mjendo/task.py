@@ -166,10 +166,10 @@ class NavigationTask:
         mujoco.mj_getState(m, d, state, spec)
         return state
 
-    def reset(self, rng: np.random.Generator) -> np.ndarray:
-        """Start an episode: settled stomach, straight scope, a random target."""
+    def reset(self, rng: np.random.Generator, phase: int | None = None) -> np.ndarray:
+        """Start an episode: settled stomach, straight scope, a random target; ``phase`` picks the start state."""
         sim = self.sim
-        k = int(rng.integers(len(self._starts))) if self.cfg.randomize_phase else 0
+        k = phase if phase is not None else int(rng.integers(len(self._starts))) if self.cfg.randomize_phase else 0
         mujoco.mj_setState(sim.model, sim.data, self._starts[k], mujoco.mjtState.mjSTATE_INTEGRATION)
         sim.clear_warnings()  # counts belong to the previous episode
         self.pulls[:] = 0.0

@@ -143,5 +143,17 @@ def test_a_policy_trained_in_other_scenes_warns_naming_both(policy_copy):
         artifacts.load(policy_copy)  # the scenes it was trained in: no warning
     meta["scene_fingerprint"] = "0123456789ab"
     (policy_copy / "meta.json").write_text(json.dumps(meta))
-    with pytest.warns(RuntimeWarning, match=f"trained in scenes 0123456789ab, the installed scenes are {now}"):
+    with pytest.warns(RuntimeWarning, match=f"trained on scenes 0123456789ab, the installed scenes are {now}"):
+        artifacts.load(policy_copy)
+
+
+def test_a_policy_trained_on_other_target_lists_warns_naming_both(policy_copy):
+    from mjendo import targets
+
+    meta = json.loads((policy_copy / "meta.json").read_text())
+    version = int(artifacts.trained_task(meta)["version"])
+    meta["targets_fingerprint"] = "ba9876543210"
+    (policy_copy / "meta.json").write_text(json.dumps(meta))
+    with pytest.warns(RuntimeWarning, match=f"trained on target lists ba9876543210, the installed target lists are "
+                                            f"{targets.fingerprint(version)}: the targets were drawn again"):
         artifacts.load(policy_copy)

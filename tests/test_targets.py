@@ -20,12 +20,13 @@ def test_classes_follow_the_rule_and_lists_are_drawn_from_them():
         return abs(x - edge) <= 0.005
 
     for p in POINTS.values():
-        free, wall = p["free_mm"], p["wall_mm"]
-        if near(free, 3) or near(free, 10) or near(wall, 3):
+        free, wall, phase = p["free_mm"], p["wall_mm"], p["phase_mm"]
+        if near(free, 3) or near(free, 10) or near(wall, 3) or near(phase, 3):
             continue
         expected = ("free" if free < 3 else "between" if free < 10 else
-                    "contact_aided" if wall < 3 else "out_of_reach")
+                    "contact_aided" if wall < 3 and phase < 3 else "out_of_reach")
         assert p["class"] == expected, p
+        assert (p["demos"] is not None) == (p["class"] == "contact_aided"), p
     a, b, f = (set(MAP.lists[k]) for k in "ABF")
     assert not (a & b) and len(b) >= 50 and len(a) >= len(b)
     assert all(POINTS[i]["class"] in ("free", "contact_aided") for i in a | b)
@@ -33,6 +34,43 @@ def test_classes_follow_the_rule_and_lists_are_drawn_from_them():
     for name in "AB":  # at least 60 % of each list needs the wall (free-space distance >= 10 mm)
         share = np.mean([POINTS[i]["free_mm"] >= 10 for i in MAP.lists[name]])
         assert share >= 0.6, (name, share)
+
+
+def replay(name: str, point: int, run: int) -> float:
+    """Closest approach (mm) of the demonstrator the map recorded for ``point`` in ``run`` (0: SE, k: DE phase k)."""
+    env = "SE" if run == 0 else "DE"
+    task = NavigationTask(env=env, target_list=name, max_steps=targets.TRIAL_STEPS, randomize_phase=False)
+    phase = None if run == 0 else (run - 1) * len(task.start_states) // targets.PHASES
+    task.reset(np.random.default_rng(0), phase)
+    task.set_target(point)
+    demo = targets.DEMOS[POINTS[point]["demos"][run]]
+    closest = np.inf
+    for k in range(targets.TRIAL_STEPS):
+        res = task.step(targets.demo_action(demo, k))
+        closest = min(closest, res.info["distance_mm"])
+        if res.terminated or res.truncated:
+            break
+    return closest
+
+
+def aided(name: str) -> list[int]:
+    return [i for i in MAP.lists[name] if POINTS[i]["class"] == "contact_aided"]
+
+
+@pytest.mark.parametrize("name", ["A", "B"])
+def test_listed_contact_aided_targets_are_reached_in_a_trial_by_their_recorded_demonstrators(name):
+    # The map's promise, replayed through the task itself: a sample of each list's contact-aided targets, in SE
+    # and from one load phase of DE (every target and phase: the slow tier).
+    for j, point in enumerate(aided(name)[::12]):
+        for run in (0, 1 + j % targets.PHASES):
+            assert replay(name, point, run) < 3.0, (name, point, run)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["A", "B"])
+def test_every_listed_contact_aided_target_is_reached_from_every_start(name):
+    misses = [(p, r) for p in aided(name) for r in range(1 + targets.PHASES) if replay(name, p, r) >= 3.0]
+    assert not misses
 
 
 def test_listed_targets_are_on_the_lumen_and_move_with_the_wall():

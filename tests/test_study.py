@@ -99,7 +99,7 @@ def test_a_tiny_grid_runs_on_ray_and_reports_intervals(tiny_config, tmp_path, mo
     finally:
         ray.shutdown()
     assert (tmp_path / "runs" / "D" / "seed1" / "study_trials.csv").stat().st_mtime_ns == before
-    # ... unless the scene files changed since (a contact fix, a recalibration): then they are evaluated again.
+    # ... unless the scene files or the target lists changed since: then they are evaluated again.
     from mjendo import scene
     from mjendo.study import _read_results
 
@@ -118,6 +118,11 @@ def test_a_tiny_grid_runs_on_ray_and_reports_intervals(tiny_config, tmp_path, mo
     finally:
         ray.shutdown()
     assert (tmp_path / "runs" / "D" / "seed1" / "study_trials.csv").stat().st_mtime_ns == before
+    from mjendo import targets
+
+    monkeypatch.setattr(targets, "fingerprint", lambda version=None: "other lists")  # the lists drawn again
+    assert _read_results(tmp_path / "runs" / "D" / "seed1", cfg) is None
+    monkeypatch.undo()
     monkeypatch.setattr(scene, "fingerprint", lambda fidelity="fast": "another model")
     assert _read_results(tmp_path / "runs" / "D" / "seed1", cfg) is None
 

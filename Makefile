@@ -21,7 +21,7 @@ setup: $(STAMP)
 
 # The default tier and the integration tier (wheel, Ray, MuJoCo Warp); `slow` stays out (pytest -m slow).
 test: $(STAMP)
-	$(BIN)/python -m pytest -q -m "not slow"
+	$(BIN)/python -m pytest -q -m "not slow" --durations=10
 
 bench: $(STAMP)
 	$(BIN)/python -m mjendo.bench

@@ -273,11 +273,29 @@ def ship(run: Path, policy: str, dest: Path | None = None) -> Path:
                           "finish it with the same `make train` command first")
     dest = Path(dest) if dest else paths.policies_dir() / policy
     dest.mkdir(parents=True, exist_ok=True)
-    for name in (META_FILE, CONFIG_FILE, NORM_FILE):
+    for name in (CONFIG_FILE, NORM_FILE):
         if (run / name).exists():
             shutil.copy2(run / name, dest / name)
+    last = _last_evaluation(run)
+    write_meta(dest, {**meta, "final_evaluation": last} if last else meta)
     slim_copy(run / MODEL_FILE, dest / MODEL_FILE)
     return dest
+
+
+def _last_evaluation(run: Path) -> dict | None:
+    """The run's last periodic evaluation (evaluations.csv), so a shipped policy says how well it did."""
+    import csv
+
+    path = run / "evaluations.csv"
+    if not path.exists():
+        return None
+    with open(path) as f:
+        rows = list(csv.DictReader(f))
+    if not rows:
+        return None
+    last = rows[-1]
+    return {"timesteps": int(last["timesteps"]), "success_rate": float(last["success_rate"]),
+            "mean_final_mm": float(last["mean_final_mm"])}
 
 
 def main(argv: list[str] | None = None) -> int:

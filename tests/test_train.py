@@ -109,6 +109,9 @@ def test_shipping_keeps_the_policy_and_drops_the_optimizer(short_run, tmp_path):
     run, _ = short_run
     dest = artifacts.ship(run, "D", tmp_path / "D")
     assert {p.name for p in dest.iterdir()} == {"config.yaml", "meta.json", "model.zip", "vecnormalize.pkl"}
+    # The shipped meta says how the run's last periodic evaluation went (512 steps: evaluated at 256 and 512).
+    last = json.loads((dest / "meta.json").read_text())["final_evaluation"]
+    assert last["timesteps"] == 512 and 0.0 <= last["success_rate"] <= 1.0 and last["mean_final_mm"] > 0
     assert (dest / "model.zip").stat().st_size < 0.6 * (run / "model.zip").stat().st_size
     env = EndoscopeEnv("DE", force_obs=False)
     obs, _ = env.reset(seed=0)

@@ -158,7 +158,8 @@ def trial_records(env, ctrl, name: str, seeds: list[int], keep_paths: bool = Fal
                             float(np.mean(f > 1.0)), float(np.mean(f > 2.0)), float(to_mm(motion)),
                             k * env.task.control_dt))
         if keep_paths:
-            paths.append({"target": info["target_index"], "tip_mm": np.array(tips), "force_n": np.array(forces),
+            paths.append({"target": info["target_index"], "target_mm": to_mm(start), "tip_mm": np.array(tips),
+                          "force_n": np.array(forces),
                           "distance_mm": np.array(dists), "contact_mm": contact_pos, "success": ok})
     return trials, paths
 

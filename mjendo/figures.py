@@ -88,11 +88,11 @@ def trajectories(paths: list[dict], out: Path, title: str = "Policy E in DE") ->
         c = cmap(targets.index(p["target"]) % 20)
         tip = p["tip_mm"]
         ax.plot(tip[:, 0], tip[:, 2], color=c, lw=1.2, alpha=0.9)
-        ax.plot(*to_mm(st.mesh.points[p["target"]][[0, 2]]), "o", color=c, ms=6, mec="k")
+        ax.plot(*p["target_mm"][[0, 2]], "o", color=c, ms=6, mec="k")  # a lumen point, not a vertex, from v1
         if p["contact_mm"] is not None:
             ax.plot(p["contact_mm"][0], p["contact_mm"][2], "x", color="k", ms=7, mew=1.5)
     ax.plot([], [], "x", color="k", label="first wall contact")
-    ax.plot([], [], "o", color="0.5", mec="k", label="target (rest position)")
+    ax.plot([], [], "o", color="0.5", mec="k", label="target (at the trial's start)")
     ax.set(xlabel="x (mm)", ylabel="z (mm)", title=f"{title}: tip trajectories by target ({len(paths)} trials)",
            aspect="equal")
     ax.legend(fontsize=8, loc="lower left")

@@ -50,7 +50,7 @@ def test_trajectory_and_force_figures_from_constructed_paths(tmp_path, stomach):
     paths = []
     for t in stomach.targets_a[:3]:
         tip = np.cumsum(rng.normal(0, 2, (40, 3)), 0) + stomach.entry * 1e3
-        paths.append({"target": t, "tip_mm": tip, "force_n": np.abs(rng.normal(0, 1, 40)),
+        paths.append({"target": t, "target_mm": tip[-1], "tip_mm": tip, "force_n": np.abs(rng.normal(0, 1, 40)),
                       "distance_mm": np.linspace(60, 2, 40), "contact_mm": tip[10], "success": True})
     a = figures.trajectories(paths, tmp_path / "t.png")
     b = figures.force_distance(paths, tmp_path / "f.png")

@@ -130,9 +130,9 @@ class EndoscopeEnv(gym.Env):
         self.action_space = gym.spaces.Box(-PAPER_ACTION_LIMIT, PAPER_ACTION_LIMIT, (ACTION_SIZE,), np.float32)
         self.observation_space = gym.spaces.Box(self.task.obs_low, self.task.obs_high, dtype=np.float32)
 
-    def set_contact_aided_weight(self, weight: float) -> None:
-        """Curriculum hook for training (``VecEnv.env_method``): see NavigationTask.set_contact_aided_weight."""
-        self.task.set_contact_aided_weight(weight)
+    def set_target_weights(self, weights) -> None:
+        """Training's hook (``VecEnv.env_method``) for how often each target is drawn: see mjendo.sampling."""
+        self.task.set_target_weights(weights)
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)

@@ -63,6 +63,11 @@ class TargetTable:
         where = {int(i): r for r, i in enumerate(self.ids)}
         return np.array([where[int(i)] for i in ids], dtype=np.int64)
 
+    def contact_aided(self, ids) -> np.ndarray:
+        """Whether each id is of the map's contact-aided class (all False for version 0's vertices)."""
+        return self.classes[self.rows(ids)] == "contact_aided" if self.classes is not None \
+            else np.zeros(len(ids), bool)
+
     def positions(self, vertices: np.ndarray, ids) -> np.ndarray:
         """Positions of target points given every vertex position (m)."""
         r = self.rows(ids)

@@ -104,8 +104,7 @@ class NavigationTask:
         rows = table.rows(self.targets)
         # Each listed target's lumen triangle and weights, in list order (the batched backend reads them too).
         self.target_tri, self.target_bary = table.tris[rows], table.bary[rows]
-        self.contact_aided = table.classes[rows] == "contact_aided" if table.classes is not None \
-            else np.zeros(len(rows), bool)
+        self.contact_aided = table.contact_aided(self.targets)
         self.target_p: np.ndarray | None = None  # sampling probabilities of the list's targets; None: uniform
         self.cable_step = from_mm(c.cable_mm_per_unit)
         self.insertion_step = from_mm(c.insertion_mm_per_unit)
@@ -182,10 +181,15 @@ class NavigationTask:
         self.contact = sim.contact()
         return self.set_target(int(rng.choice(self.targets, p=self.target_p)))
 
-    def set_contact_aided_weight(self, weight: float) -> None:
-        """Draw contact-aided targets ``weight`` times as often as the others (a training curriculum)."""
-        w = np.where(self.contact_aided, float(weight), 1.0)
-        self.target_p = None if weight == 1.0 or w.sum() <= 0 else w / w.sum()
+    def set_target_weights(self, weights) -> None:
+        """Relative draw weight of each listed target, in list order (training's TargetSampler); None: uniform."""
+        if weights is None:
+            self.target_p = None
+            return
+        w = np.asarray(weights, float)
+        if w.shape != self.targets.shape or not np.all(np.isfinite(w)) or w.min() < 0 or w.sum() <= 0:
+            raise ValueError(f"target weights must be {len(self.targets)} finite numbers >= 0, not all 0")
+        self.target_p = None if np.all(w == w[0]) else w / w.sum()
 
     def set_target(self, index: int) -> np.ndarray:
         """Aim at another vertex of the list (e.g. to replay a chosen target); returns the observation."""

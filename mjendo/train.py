@@ -25,9 +25,10 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from mjendo import artifacts, cli, paths
+from mjendo import artifacts, cli, paths, targets
 from mjendo.artifacts import MODEL_FILE, NORM_FILE, PolicyError
-from mjendo.config import FIDELITIES, PAPER_EVAL_STEPS, ConfigError
+from mjendo.config import FIDELITIES, PAPER_EVAL_STEPS, ConfigError, default_target_list
+from mjendo.sampling import TargetSampler
 from mjendo.train_config import TrainConfig, from_dict
 from mjendo.train_config import load as load_config
 
@@ -89,6 +90,18 @@ def periodic_evaluation(model, venv, cfg: TrainConfig, meta: dict) -> tuple[floa
     return float(np.mean(succ)), float(np.mean(err)), float(np.mean([r for _, r in results]))
 
 
+def target_sampler(cfg: TrainConfig, run: Path | None = None) -> TargetSampler:
+    """The run's target sampler (TrainConfig.target_sampling), with the solve rates of its latest checkpoint."""
+    task = cfg.task_config()
+    listed = targets.load(task.version).lists[task.target_list or default_target_list(task.env, task.version)]
+    sampler = TargetSampler(listed, targets.load(task.version).contact_aided(listed), cfg.target_sampling,
+                            cfg.curriculum_steps)
+    ckpt = latest_checkpoint(run) if run is not None else None
+    if ckpt is not None:
+        sampler.load(ckpt.parent / f"sampling_{CKPT_RE.fullmatch(ckpt.name).group(1)}.json")
+    return sampler
+
+
 def _callbacks(cfg: TrainConfig, run: Path, meta: dict, start_steps: int, progress: bool = True):
     from stable_baselines3.common.callbacks import BaseCallback
     from tqdm import tqdm
@@ -109,11 +122,11 @@ def _callbacks(cfg: TrainConfig, run: Path, meta: dict, start_steps: int, progre
             self.recent: list[float] = []
             self.last_eval: float | None = None
             self.best = _best_so_far(run)
+            self.sampler = target_sampler(cfg, run)
 
         def _on_rollout_start(self) -> None:
-            if cfg.curriculum_steps:  # contact-aided targets phase in (TrainConfig.curriculum_steps)
-                self.training_env.env_method("set_contact_aided_weight",
-                                             min(1.0, self.num_timesteps / cfg.curriculum_steps))
+            if self.sampler.active:  # how often each target is drawn (TrainConfig.target_sampling, curriculum)
+                self.training_env.env_method("set_target_weights", self.sampler.weights(self.num_timesteps))
 
         def _on_step(self) -> bool:
             for info in self.locals["infos"]:
@@ -122,13 +135,14 @@ def _callbacks(cfg: TrainConfig, run: Path, meta: dict, start_steps: int, progre
                     self.episodes.writerow([self.num_timesteps, ep["r"], ep["l"], int(info["is_success"]),
                                             info["distance_mm"]])
                     self.recent = (self.recent + [float(info["is_success"])])[-100:]
+                    self.sampler.record(info["target_index"], bool(info["is_success"]), int(ep["l"]))
             self.bar.update(self.model.n_envs)
             if self.num_timesteps >= self.next_eval:
                 self.next_eval += cfg.eval_every
                 self.evaluate()
             if self.num_timesteps >= self.next_ckpt:
                 self.next_ckpt += cfg.checkpoint_every
-                save_checkpoint(self.model, run)
+                save_checkpoint(self.model, run, self.sampler)
             if self.n_calls % 50 == 0:
                 rate = (self.num_timesteps - self.s0) / max(time.time() - self.t0, 1e-9)
                 shown = {"steps_s": f"{rate:.0f}", "success": f"{np.mean(self.recent or [0]):.2f}"}
@@ -166,8 +180,8 @@ def latest_checkpoint(run: Path) -> Path | None:
     return found[-1][1] if found else None
 
 
-def save_checkpoint(model, run: Path) -> Path:
-    """Model + normalisation stats, written atomically; keeps the last two."""
+def save_checkpoint(model, run: Path, sampler: TargetSampler | None = None) -> Path:
+    """Model + normalisation stats (+ the target sampler's solve rates), written atomically; keeps the last two."""
     d = run / CKPT_DIR
     d.mkdir(parents=True, exist_ok=True)
     path = d / f"model_{model.num_timesteps}.zip"
@@ -176,10 +190,13 @@ def save_checkpoint(model, run: Path) -> Path:
     env = model.get_env()
     if hasattr(env, "obs_rms"):
         env.save(str(d / f"vecnormalize_{model.num_timesteps}.pkl"))
+    if sampler is not None:
+        sampler.save(d / f"sampling_{model.num_timesteps}.json")
     os.replace(tmp, path)
     for steps, old in checkpoints(run)[:-2]:
         old.unlink()
         (d / f"vecnormalize_{steps}.pkl").unlink(missing_ok=True)
+        (d / f"sampling_{steps}.json").unlink(missing_ok=True)
     return path
 
 
@@ -340,7 +357,7 @@ def train(policy: str, timesteps: int | None = None, seed: int | None = None, n_
         if total > start:
             model.learn(total - start, callback=cb, reset_num_timesteps=False, tb_log_name="ppo")
     except KeyboardInterrupt:
-        path = save_checkpoint(model, run)
+        path = save_checkpoint(model, run, cb.sampler)
         print(f"\ninterrupted: saved {path}; run the same command to resume")
         venv.close()
         raise SystemExit(130) from None

@@ -21,6 +21,7 @@ from typing import Any
 import yaml
 
 from mjendo.config import CONDITIONS, FIDELITIES, POLICY_NAMES, ConfigError, TaskConfig, task_config
+from mjendo.sampling import SAMPLINGS
 
 TASK_KEYS_SET_BY_POLICY = ("env", "fidelity", "force_obs")  # top-level fields of a policy entry
 
@@ -138,6 +139,9 @@ class TrainConfig:
     """name of the config's variants entry this run applies to its policy, or None (the paper's policy)"""
     curriculum_steps: int = 0
     """steps over which contact-aided targets go from never drawn to drawn as often as the others (0: none)"""
+    target_sampling: str = "uniform"
+    """how training draws targets: 'uniform' (the paper) or 'adaptive' (more often the less reliably the policy
+    reaches them within a trial; mjendo.sampling). The batched backend draws uniformly"""
 
     def task_config(self) -> TaskConfig:
         """The task this run trains in (validated)."""
@@ -163,6 +167,8 @@ class TrainConfig:
         if self.curriculum_steps < 0 or (self.curriculum_steps and self.backend == "warp"):
             raise ConfigError(f"curriculum_steps must be >= 0 and needs the cpu backend (got {self.curriculum_steps}, "
                               f"backend {self.backend})")
+        if self.target_sampling not in SAMPLINGS:
+            raise ConfigError(f"target_sampling must be one of {', '.join(SAMPLINGS)}, not {self.target_sampling!r}")
         for name in ("checkpoint_every", "eval_every", "eval_episodes"):
             if getattr(self, name) < 1:
                 raise ConfigError(f"{name} must be >= 1")
@@ -296,6 +302,7 @@ def load(policy: str, path: Path, variant: str | None = None, **overrides) -> Tr
         cfg.init_from = str(given["init_from"])
     if given.pop("backend", "cpu") == "warp":
         cfg.backend = "warp"
+        cfg.target_sampling = "uniform"  # its worlds draw their targets on the device
         cfg.n_envs, cfg.total_timesteps = cfg.batched.n_envs, cfg.batched.total_timesteps
         cfg.eval_every = cfg.batched.eval_every or cfg.eval_every
         cfg.checkpoint_every = cfg.batched.checkpoint_every or cfg.checkpoint_every

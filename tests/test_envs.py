@@ -171,19 +171,20 @@ def test_scope_observation_is_the_insertion_and_tip_pose_appended():
     assert np.linalg.norm(os_[19:22]) == pytest.approx(1.0, abs=1e-5)
 
 
-def test_contact_aided_weight_sets_how_often_those_targets_are_drawn():
+def test_target_weights_set_how_often_each_target_is_drawn():
     env = EndoscopeEnv("DE")
     hard = set(env.task.targets[env.task.contact_aided].tolist())
     assert 0.5 < len(hard) / len(env.task.targets) < 0.8  # list A: about two thirds (docs/task.md)
 
     def share(weight, n=150):
-        env.set_contact_aided_weight(weight)
+        env.set_target_weights(np.where(env.task.contact_aided, weight, 1.0))
         return np.mean([env.reset(seed=s)[1]["target_index"] in hard for s in range(n)])
 
     assert share(0.0) == 0.0
     assert 0.1 < share(0.25) < 0.5 < share(1.0) < 0.8
-    env.set_contact_aided_weight(1.0)
-    assert env.task.target_p is None  # weight 1: the paper's uniform draw, unchanged
+    assert env.task.target_p is None  # equal weights: the paper's uniform draw, unchanged
+    with pytest.raises(ValueError, match="target weights"):
+        env.set_target_weights(np.zeros(len(env.task.targets)))
 
 
 def test_bad_actions_and_names():

@@ -16,7 +16,7 @@ from mjendo.paths import TRAINING_CONFIG
 from mjendo.policies import PolicyError, PPOController, load_controller
 from mjendo.scene import fingerprint
 from mjendo.task import NavigationTask
-from mjendo.train import latest_checkpoint, load_config, run_folder, train
+from mjendo.train import latest_checkpoint, load_config, run_folder, target_sampler, train
 
 
 @pytest.fixture(scope="module")
@@ -125,6 +125,10 @@ def test_resume_continues_the_step_count(short_run):
     meta = json.loads((run / "meta.json").read_text())
     assert meta["timesteps"] == 512
     assert latest_checkpoint(run) is not None
+    sampler = target_sampler(load_config("D", run.parent.parent / "policies.yaml"), run)  # D draws adaptively
+    saved = json.loads((latest_checkpoint(run).parent / "sampling_512.json").read_text())
+    assert saved["targets"] == sampler.targets and np.allclose(saved["solved"], sampler.solved)
+    assert len(sampler.targets) > 40 and sampler.solved.max() <= 1.0
     steps = np.loadtxt(run / "episodes.csv", delimiter=",", skiprows=1, ndmin=2)[:, 0]
     assert np.all(np.diff(steps) >= 0)  # one monotone log across the resume
 

@@ -1,0 +1,45 @@
+"""Training's target draw: prioritised on what the policy fails within a trial, phased curriculum, resume."""
+
+import json
+
+import numpy as np
+import pytest
+
+from mjendo.config import PAPER_EVAL_STEPS, ConfigError
+from mjendo.sampling import FLOOR, TargetSampler
+
+
+def test_adaptive_draws_failed_and_slow_targets_more_often_than_solved_ones():
+    s = TargetSampler([10, 11, 12], [False, True, True], "adaptive")
+    for _ in range(30):
+        s.record(10, True, 40)  # solved within a trial
+        s.record(11, True, PAPER_EVAL_STEPS + 20)  # reached, but too slowly for a trial
+        s.record(12, False, 128)
+    w = s.weights(0)
+    assert w[0] == pytest.approx(FLOOR, abs=0.01)
+    assert w[1] == pytest.approx(w[2]) == pytest.approx(1 + FLOOR, abs=0.01)
+    s.record(99, True, 10)  # not in the list: ignored
+    assert np.allclose(s.weights(0), w)
+
+
+def test_uniform_is_the_papers_draw_and_the_curriculum_multiplies_in():
+    uniform = TargetSampler([1, 2], [False, True])
+    assert not uniform.active and np.all(uniform.weights(10**6) == 1.0)
+    cur = TargetSampler([1, 2], [False, True], "adaptive", curriculum_steps=1000)
+    assert cur.active
+    assert cur.weights(0)[1] == 0.0 and cur.weights(500)[1] == pytest.approx(0.5 * cur.weights(500)[0])
+    with pytest.raises(ConfigError, match="target_sampling"):
+        TargetSampler([1], [False], "greedy")
+
+
+def test_solve_rates_survive_a_checkpoint_of_the_same_list_only(tmp_path):
+    s = TargetSampler([1, 2], [False, True], "adaptive")
+    s.record(1, True, 5)
+    s.save(tmp_path / "s.json")
+    back = TargetSampler([1, 2], [False, True], "adaptive")
+    back.load(tmp_path / "s.json")
+    assert np.allclose(back.weights(0), s.weights(0))
+    other = TargetSampler([1, 3], [False, True], "adaptive")
+    other.load(tmp_path / "s.json")  # another list: starts afresh
+    assert np.all(other.solved == 0)
+    assert json.loads((tmp_path / "s.json").read_text())["targets"] == [1, 2]

@@ -70,7 +70,7 @@ def test_before_contact_worlds_track_the_cpu_task_step_by_step(env_name, inserti
         np.testing.assert_allclose(r.reward.numpy(), [c[1] for c in cpu], atol=POS_MM)
 
 
-@pytest.mark.parametrize("fidelity", ["fast", "full"])
+@pytest.mark.parametrize("fidelity", ["fast", pytest.param("full", marks=pytest.mark.slow)])
 def test_contact_indicator_and_force_agree_for_the_same_state(fidelity):
     # Press the straight scope into the far wall on the CPU, copy those states into two worlds, and read the
     # resultant contact force both ways: Warp's contact data + constraint forces vs mj_contactForce.
@@ -176,6 +176,7 @@ def test_counter_based_draws_are_uniform_and_independent():
     assert abs(float(np.corrcoef(u.numpy(), v.numpy())[0, 1])) < 0.03
 
 
+@pytest.mark.slow  # make train BACKEND=warp (below) trains SB3 on the batched env in the default run
 def test_sb3_trains_on_the_batched_env():
     from stable_baselines3 import PPO
 
@@ -211,6 +212,7 @@ def test_make_train_backend_warp_writes_a_policy_the_cpu_env_runs(tmp_path):
     assert np.abs(ctrl.act(obs, env.task)).max() <= 0.4 + 1e-6
 
 
+@pytest.mark.slow
 def test_a_shipped_policy_runs_over_many_worlds():
     # The code path of the success-rate comparison (below), small enough for the CPU device: policy A in FE.
     from mjendo.batch import success_rate
@@ -358,6 +360,7 @@ def test_bad_batch_arguments():
         b.step(np.full((1, 5), np.nan))
 
 
+@pytest.mark.slow  # 40 control steps of contact on the CPU device
 def test_a_world_that_runs_out_of_contact_buffers_is_reported():
     # Too few contact slots drop contacts silently in MuJoCo Warp (64 lost the deepest ones of a hard press in
     # the fast stomach): the batch must say so, naming the fix.
@@ -369,6 +372,7 @@ def test_a_world_that_runs_out_of_contact_buffers_is_reported():
     assert batch.overflows > 0
 
 
+@pytest.mark.slow  # 45 control steps of contact on the CPU device
 def test_the_fast_stomachs_solver_converges_and_a_starved_one_is_counted():
     # The fast stomach solves with Newton: on Warp (float32) the scope driven into the far wall converges within
     # the cap on every step (measured: at most 6 iterations; CG hit its 1,000 cap on 5 % of world-steps).

@@ -59,15 +59,23 @@ def tiny_config(tmp_path_factory):
 def test_a_tiny_grid_runs_on_ray_and_reports_intervals(tiny_config, tmp_path, monkeypatch):
     import ray
 
-    from mjendo.study import StudyConfig, study
+    from mjendo.study import StudyConfig
 
     cfg = StudyConfig(policies=("D",), seeds=(1, 2), timesteps=256, trials=3, validation_trials=4,
                       envs=("DE", "UE1"), config=tiny_config, runs=tmp_path / "runs", out=tmp_path / "study")
-    try:
-        out = study(cfg, command="test")
-        assert ray.is_initialized()  # it went through Ray (a local cluster)
+    try:  # one local cluster for the three studies below: starting Ray and its workers is most of the cost
+        _tiny_grid_checks(cfg, tiny_config, tmp_path, monkeypatch)
     finally:
         ray.shutdown()
+
+
+def _tiny_grid_checks(cfg, tiny_config, tmp_path, monkeypatch):
+    import ray
+
+    from mjendo.study import StudyConfig, study
+
+    out = study(cfg, command="test")
+    assert ray.is_initialized()  # it went through Ray (a local cluster)
     with open(out / "summary.csv") as f:
         rows = list(csv.DictReader(f))
     assert {(r["policy"], r["env"], r["seeds"], r["trials_per_seed"]) for r in rows} == {
@@ -94,10 +102,7 @@ def test_a_tiny_grid_runs_on_ray_and_reports_intervals(tiny_config, tmp_path, mo
     assert f"| D | {best_seed} |" in (out / "report.md").read_text()
     # Finished trials are skipped when the study runs again: nothing is trained or evaluated again.
     before = (tmp_path / "runs" / "D" / "seed1" / "study_trials.csv").stat().st_mtime_ns
-    try:
-        study(cfg, command="test again")
-    finally:
-        ray.shutdown()
+    study(cfg, command="test again")
     assert (tmp_path / "runs" / "D" / "seed1" / "study_trials.csv").stat().st_mtime_ns == before
     # ... unless the scene files or the target lists changed since: then they are evaluated again.
     from mjendo import scene
@@ -112,11 +117,8 @@ def test_a_tiny_grid_runs_on_ray_and_reports_intervals(tiny_config, tmp_path, mo
     (ckpts / "vecnormalize_128.pkl").write_bytes(b"not a pickle")
     broken = StudyConfig(policies=("D",), seeds=(1, 4), timesteps=256, trials=3, validation_trials=4,
                          envs=("DE", "UE1"), config=tiny_config, runs=tmp_path / "runs", out=tmp_path / "study_broken")
-    try:
-        with pytest.raises(ConfigError, match=r"D seed 4 failed: checkpoint .*model_128.zip.* is unreadable"):
-            study(broken, command="test broken")
-    finally:
-        ray.shutdown()
+    with pytest.raises(ConfigError, match=r"D seed 4 failed: checkpoint .*model_128.zip.* is unreadable"):
+        study(broken, command="test broken")
     assert (tmp_path / "runs" / "D" / "seed1" / "study_trials.csv").stat().st_mtime_ns == before
     from mjendo import targets
 

@@ -29,6 +29,8 @@ def test_every_shipped_policy_loads_and_reaches_a_target_in_its_environment(vers
     meta = artifacts.read_meta(folder)
     assert meta["task"]["env"] == TRAINED_IN[policy] and meta["timesteps"] > 100_000
     assert meta["mjendo_version"] and meta["scene_fingerprint"] and meta["commit"]  # provenance
+    # the command as a user types it: no interpreter path, no Ray worker's argv
+    assert meta["command"].startswith(("python -m mjendo.", "make ")) and "/work" not in meta["command"]
     env = EndoscopeEnv(TRAINED_IN[policy], force_obs=force_obs_of(str(folder)), max_steps=PAPER_EVAL_STEPS,
                        version=version)
     ctrl = load_controller(str(folder), env.task)

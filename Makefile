@@ -14,7 +14,7 @@ $(STAMP): pyproject.toml
 	$(BIN)/pip install --quiet --upgrade pip
 	# torch first: the CPU build 2.13.0 (an unpinned torch pulls a multi-GB CUDA build)
 	$(BIN)/pip install --quiet torch==2.13.0
-	$(BIN)/pip install --quiet -e '.[dev,study,warp]'
+	$(BIN)/pip install --quiet -e '.[dev,study,warp,mesh]'
 	touch $(STAMP)
 
 setup: $(STAMP)

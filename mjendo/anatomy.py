@@ -20,7 +20,7 @@ import numpy as np
 
 from mjendo import cli, paths, tetmesh
 from mjendo.config import PAPER_N_FIXED, PAPER_N_FORCED, Endoscope, StomachShape
-from mjendo.tetmesh import MeshError, TetMesh
+from mjendo.tetmesh import GMSH_ALGORITHMS, MeshError, TetMesh, extrude_wall, gmsh_wall, quality
 from mjendo.units import from_mm, to_mm
 
 STOMACH_DIR = paths.STOMACH_DIR
@@ -317,6 +317,37 @@ def load(directory: Path = STOMACH_DIR) -> Stomach:
                    meta["forced"], meta["targets_a"], meta["targets_b"], meta["info"])
 
 
+def meshers_table(sizes_mm=(10.0, 6.0)) -> str:
+    """Markdown table: the built-in wall by prism extrusion, and by gmsh on the same boundary and remeshed."""
+    import time
+
+    shape = StomachShape()
+    pts, faces, lm = lumen_surface(shape)
+    rows = []
+
+    def row(name, make):
+        t0 = time.perf_counter()
+        q = quality(make())
+        rows.append(f"| {name} | {time.perf_counter() - t0:.2f} | {q['vertices']} | {q['tets']} | "
+                    f"{q['min_dihedral_deg']:.1f} | {q['max_dihedral_deg']:.1f} | {q['min_radius_ratio']:.3f} | "
+                    f"{q['median_radius_ratio']:.3f} | {q['volume_cm3']:.1f} |")
+
+    def prisms():
+        return extrude_wall(pts, faces, from_mm(shape.wall_thickness_mm), lm["entry"],
+                            from_mm(shape.cardia_radius_mm), shape.wall_layers)
+
+    wall = prisms()
+    row("prism extrusion (mjendo)", prisms)
+    for algo in GMSH_ALGORITHMS:
+        row(f"gmsh {algo}, same boundary", lambda a=algo: gmsh_wall(wall, None, a))
+    for size in sizes_mm:
+        for algo in GMSH_ALGORITHMS:
+            row(f"gmsh {algo}, boundary remeshed at {size:g} mm", lambda a=algo, s=size: gmsh_wall(wall, s, a))
+    head = ("| mesher | s | vertices | tets | min dihedral (deg) | max dihedral (deg) | min radius ratio | "
+            "median radius ratio | volume (cm3) |\n|---|---|---|---|---|---|---|---|---|")
+    return "\n".join([head, *rows])
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m mjendo.anatomy", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -331,11 +362,17 @@ def main(argv: list[str] | None = None) -> int:
     b.add_argument("--thickness", type=float, default=5.0, help="wall thickness, mm")
     r = sub.add_parser("report", help="print sizes and mesh quality")
     r.add_argument("--dir", type=Path, default=STOMACH_DIR)
+    m = sub.add_parser("meshers", help="the built-in wall by prism extrusion against gmsh (needs gmsh)")
+    m.add_argument("--sizes", type=float, nargs="*", default=[10.0, 6.0],
+                   help="element sizes (mm) at which gmsh also remeshes the boundary")
     args = ap.parse_args(argv)
     if getattr(args, "surface", None) and (args.entry is None or args.axis is None):
         ap.error("--surface needs --entry and --axis (the cardia and insertion direction)")
 
     def command() -> None:
+        if args.cmd == "meshers":
+            print(meshers_table(args.sizes))
+            return
         if args.cmd == "build":
             st = from_surface(args.surface, args.entry, args.axis, args.thickness) if args.surface else build()
             save(st, args.out)

@@ -220,3 +220,49 @@ def read_msh(path: Path) -> tuple[np.ndarray, np.ndarray]:
         raise MeshError(f"{path} has no tetrahedra; give a tet mesh, or a closed lumen "
                         "surface (.stl/.obj/.ply) to be extruded into a wall")
     return np.asarray(m.points, np.float64), np.concatenate(tets).astype(np.int64)
+
+
+GMSH_ALGORITHMS = {"delaunay": 1, "hxt": 10}  # gmsh's Mesh.Algorithm3D codes
+
+
+def gmsh_wall(wall: TetMesh, size_mm: float | None = None, algorithm: str = "hxt") -> TetMesh:
+    """The same wall tetrahedralised by gmsh (the paper's mesher): on the wall's own boundary triangles
+    (``size_mm`` None), or with the boundary remeshed at ``size_mm`` first. For comparing meshers: the
+    result does not mark its lumen vertices (``inner`` all False)."""
+    try:
+        import gmsh
+    except ImportError as exc:
+        raise MeshError("comparing meshers needs gmsh: pip install gmsh") from exc
+    if algorithm not in GMSH_ALGORITHMS:
+        raise MeshError(f"unknown gmsh algorithm {algorithm!r}; valid: {', '.join(GMSH_ALGORITHMS)}")
+    bnd = boundary_faces(wall.tets)
+    on = np.unique(bnd)
+    gmsh.initialize(interruptible=False)
+    try:
+        gmsh.option.setNumber("General.Verbosity", 0)
+        surface = gmsh.model.addDiscreteEntity(2)
+        gmsh.model.mesh.addNodes(2, surface, (on + 1).tolist(), wall.points[on].ravel().tolist())
+        gmsh.model.mesh.addElementsByType(surface, 2, [], (bnd + 1).ravel().tolist())
+        surfaces = [surface]
+        if size_mm is not None:  # split the boundary at its sharp rims, rebuild it as geometry, remesh it
+            gmsh.model.mesh.classifySurfaces(np.radians(40), True, True, np.pi)
+            gmsh.model.mesh.createGeometry()
+            surfaces = [tag for _, tag in gmsh.model.getEntities(2)]
+            for name in ("Mesh.MeshSizeMin", "Mesh.MeshSizeMax"):
+                gmsh.option.setNumber(name, size_mm * 1e-3)
+        gmsh.model.geo.addVolume([gmsh.model.geo.addSurfaceLoop(surfaces)])
+        gmsh.model.geo.synchronize()
+        gmsh.option.setNumber("Mesh.Algorithm3D", GMSH_ALGORITHMS[algorithm])
+        gmsh.option.setNumber("Mesh.Optimize", 1)
+        gmsh.model.mesh.generate(3)
+        tags, coords, _ = gmsh.model.mesh.getNodes()
+        _, nodes = gmsh.model.mesh.getElementsByType(4)
+    finally:
+        gmsh.finalize()
+    row = np.full(int(np.max(tags)) + 1, -1, np.int64)
+    row[np.asarray(tags, np.int64)] = np.arange(len(tags))
+    points, tets = np.asarray(coords).reshape(-1, 3), row[np.asarray(nodes, np.int64)].reshape(-1, 4)
+    used = np.unique(tets)
+    remap = np.full(len(points), -1, np.int64)
+    remap[used] = np.arange(len(used))
+    return orient(TetMesh(points[used], remap[tets], np.zeros(len(used), bool)))

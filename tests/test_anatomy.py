@@ -114,3 +114,27 @@ def test_missing_and_corrupt_files(tmp_path):
         tetmesh.read_msh(bad)
     with pytest.raises(MeshError, match="anatomy build"):
         anatomy.load(tmp_path)
+
+
+def test_gmsh_tetrahedralises_the_same_wall_and_remeshing_buys_shape_with_elements(stomach):
+    pytest.importorskip("gmsh", reason="the mesher comparison needs the optional extra mjendo[mesh]")
+    prisms = tetmesh.quality(stomach.mesh)
+    same = tetmesh.quality(tetmesh.gmsh_wall(stomach.mesh, None, "hxt"))
+    # The same boundary, no point added: the same wall, as many tets, none inverted, no worse an element.
+    assert same["vertices"] == prisms["vertices"] and same["inverted"] == 0
+    assert same["volume_cm3"] == pytest.approx(prisms["volume_cm3"], rel=1e-6)
+    assert same["min_radius_ratio"] >= prisms["min_radius_ratio"]
+    remeshed = tetmesh.quality(tetmesh.gmsh_wall(stomach.mesh, 10.0, "hxt"))
+    assert remeshed["median_radius_ratio"] > 2 * prisms["median_radius_ratio"]  # near-regular tets ...
+    assert remeshed["tets"] > 5 * prisms["tets"]  # ... at several times the elements (and the step cost)
+    assert remeshed["volume_cm3"] == pytest.approx(prisms["volume_cm3"], rel=0.02)
+    with pytest.raises(MeshError, match="unknown gmsh algorithm"):
+        tetmesh.gmsh_wall(stomach.mesh, None, "frontal")
+
+
+def test_the_mesher_comparison_without_gmsh_says_how_to_install_it(monkeypatch, capsys):
+    import sys
+
+    monkeypatch.setitem(sys.modules, "gmsh", None)
+    assert anatomy.main(["meshers", "--sizes"]) == 2
+    assert "comparing meshers needs gmsh: pip install gmsh" in capsys.readouterr().err

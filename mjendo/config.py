@@ -401,7 +401,7 @@ class TaskConfig:
     # Insertion depth, tip position and tip axis: more of the scope's state than the paper's policies
     # see (a real robot knows its insertion; the tip pose comes from the tracker that ee_to_target needs).
     scope_obs: bool = False
-    target_list: str | None = None  # None: the environment's own list (A or B)
+    target_list: str | None = None  # None: the environment's own list (A or B); "A+F": lists joined
     max_steps: int = PAPER_TRAIN_STEPS
     version: int = CURRENT_VERSION  # task version (VERSIONS): scope, gravity, time scales, targets
     # Control period (paper: not given) and action unit -> physical increment per control step.
@@ -411,6 +411,9 @@ class TaskConfig:
     force_ref_n: float = 1.0  # the observation's force is force / force_ref
     force_penalty: float = 0.0  # optional safety term: -force_penalty * |F| (N) per step
     randomize_phase: bool = True  # start each episode at a random phase of the load
+
+
+TARGET_LISTS = ("A", "B", "F")  # training, held out, free-space (FE's own from version 1)
 
 
 def default_target_list(env: str, version: int) -> str:
@@ -442,9 +445,10 @@ def task_config(**kw) -> TaskConfig:
     for name in ("force_obs", "scope_obs", "randomize_phase"):
         if not isinstance(getattr(cfg, name), bool | np.bool_):
             raise ConfigError(f"{name} must be True or False, not {getattr(cfg, name)!r}")
-    if cfg.target_list not in (None, "A", "B", "F"):
+    parts = cfg.target_list.split("+") if isinstance(cfg.target_list, str) else [cfg.target_list]
+    if cfg.target_list is not None and (not set(parts) <= set(TARGET_LISTS) or len(set(parts)) != len(parts)):
         raise ConfigError(f"unknown target_list {cfg.target_list!r}; valid: 'A', 'B', 'F' (FE's free-space "
-                          "targets) or None")
+                          "targets), several joined by '+' (e.g. 'A+F'), or None")
     if isinstance(cfg.max_steps, bool) or not isinstance(cfg.max_steps, int | np.integer) or cfg.max_steps < 1:
         raise ConfigError(f"max_steps must be a whole number >= 1, not {cfg.max_steps!r}")
     for name in ("control_period_s", "cable_mm_per_unit", "insertion_mm_per_unit", "force_ref_n"):

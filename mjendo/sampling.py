@@ -1,4 +1,5 @@
-"""How training draws its targets: uniformly, with contact-aided targets phased in, or prioritised on failures.
+"""How training draws its targets: uniformly, from a joined pool of lists, with contact-aided targets phased
+in, or prioritised on failures.
 
 Uniform draws leave the few free targets of a list that is two-thirds contact-aided under-trained: the
 paper-config E reached 83 % of list A's contact-aided targets in DE but 41 % of its free ones, while the
@@ -24,19 +25,21 @@ MEMORY = 0.2  # EMA rate of a target's solve rate: about its last five episodes
 class TargetSampler:
     """Per-target solve rates of a training run and the draw weights they imply."""
 
-    def __init__(self, targets, contact_aided, sampling: str = "uniform", curriculum_steps: int = 0):
+    def __init__(self, targets, contact_aided, sampling: str = "uniform", curriculum_steps: int = 0, base=None):
         if sampling not in SAMPLINGS:
             raise ConfigError(f"target_sampling must be one of {', '.join(SAMPLINGS)}, not {sampling!r}")
         self.targets = [int(t) for t in targets]
         self.contact_aided = np.asarray(contact_aided, bool)
         self.sampling, self.curriculum_steps = sampling, int(curriculum_steps)
         self.solved = np.zeros(len(self.targets))  # EMA of "reached within a trial's steps"
+        # relative draw weight before curriculum and adaptation (a joined pool: each list equally often)
+        self.base = np.ones(len(self.targets)) if base is None else np.asarray(base, float)
         self._row = {t: i for i, t in enumerate(self.targets)}
 
     @property
     def active(self) -> bool:
         """Whether the draw differs from the paper's uniform one at some point of the run."""
-        return self.sampling != "uniform" or self.curriculum_steps > 0
+        return self.sampling != "uniform" or self.curriculum_steps > 0 or bool(np.ptp(self.base) > 0)
 
     def record(self, target: int, success: bool, length: int) -> None:
         """One finished training episode: solved means reached within a trial (PAPER_EVAL_STEPS)."""
@@ -46,9 +49,9 @@ class TargetSampler:
 
     def weights(self, timesteps: int) -> np.ndarray:
         """Relative draw weight of each listed target (list order) at ``timesteps`` of training."""
-        w = np.ones(len(self.targets))
+        w = self.base.copy()
         if self.curriculum_steps:  # contact-aided targets phase in over curriculum_steps
-            w = np.where(self.contact_aided, min(1.0, timesteps / self.curriculum_steps), 1.0)
+            w *= np.where(self.contact_aided, min(1.0, timesteps / self.curriculum_steps), 1.0)
         if self.sampling == "adaptive":
             w = w * (FLOOR + 1.0 - self.solved)
         return w

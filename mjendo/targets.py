@@ -63,6 +63,10 @@ class TargetTable:
         where = {int(i): r for r, i in enumerate(self.ids)}
         return np.array([where[int(i)] for i in ids], dtype=np.int64)
 
+    def listed(self, name: str) -> list[int]:
+        """The ids of a list, or of lists joined by '+' ('A+F'), in order, each id once."""
+        return list(dict.fromkeys(i for part in name.split("+") for i in self.lists[part]))
+
     def contact_aided(self, ids) -> np.ndarray:
         """Whether each id is of the map's contact-aided class (all False for version 0's vertices)."""
         return self.classes[self.rows(ids)] == "contact_aided" if self.classes is not None \

@@ -100,7 +100,7 @@ class NavigationTask:
         table = table or targets.load(c.version)
         listname = c.target_list or default_target_list(c.env, c.version)
         self.target_list = listname
-        self.targets = np.array(table.lists[listname], dtype=np.int64)
+        self.targets = np.array(table.listed(listname), dtype=np.int64)
         rows = table.rows(self.targets)
         # Each listed target's lumen triangle and weights, in list order (the batched backend reads them too).
         self.target_tri, self.target_bary = table.tris[rows], table.bary[rows]

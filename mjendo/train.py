@@ -52,6 +52,8 @@ def make_env(cfg: TrainConfig, rank: int, max_steps: int | None = None):
 
         torch.set_num_threads(1)
         kw = {**asdict(task), "max_steps": max_steps or task.max_steps}
+        if cfg.train_targets:  # training draws from its own pool; periodic evaluations keep the env's list
+            kw["target_list"] = cfg.train_targets
         env = Monitor(EndoscopeEnv(**kw), info_keywords=("is_success", "distance_mm"))
         env.reset(seed=cfg.seed * 1000 + rank)
         return env
@@ -93,9 +95,13 @@ def periodic_evaluation(model, venv, cfg: TrainConfig, meta: dict) -> tuple[floa
 def target_sampler(cfg: TrainConfig, run: Path | None = None) -> TargetSampler:
     """The run's target sampler (TrainConfig.target_sampling), with the solve rates of its latest checkpoint."""
     task = cfg.task_config()
-    listed = targets.load(task.version).lists[task.target_list or default_target_list(task.env, task.version)]
-    sampler = TargetSampler(listed, targets.load(task.version).contact_aided(listed), cfg.target_sampling,
-                            cfg.curriculum_steps)
+    table = targets.load(task.version)
+    name = cfg.train_targets or task.target_list or default_target_list(task.env, task.version)
+    listed = table.listed(name)
+    # each list of a joined pool ('A+F') is drawn equally often, whatever its length
+    share = {i: 1.0 / len(table.lists[p]) for p in reversed(name.split("+")) for i in table.lists[p]}
+    sampler = TargetSampler(listed, table.contact_aided(listed), cfg.target_sampling, cfg.curriculum_steps,
+                            base=[share[i] for i in listed])
     ckpt = latest_checkpoint(run) if run is not None else None
     if ckpt is not None:
         sampler.load(ckpt.parent / f"sampling_{CKPT_RE.fullmatch(ckpt.name).group(1)}.json")

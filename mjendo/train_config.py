@@ -139,6 +139,9 @@ class TrainConfig:
     """name of the config's variants entry this run applies to its policy, or None (the paper's policy)"""
     curriculum_steps: int = 0
     """steps over which contact-aided targets go from never drawn to drawn as often as the others (0: none)"""
+    train_targets: str | None = None
+    """the targets training draws from: None (the env's own list, the paper) or lists joined by '+', e.g.
+    'A+F' (list A and the free-space targets, each list drawn equally often); evaluations use the env's list"""
     target_sampling: str = "uniform"
     """how training draws targets: 'uniform' (the paper) or 'adaptive' (more often the less reliably the policy
     reaches them within a trial; mjendo.sampling). The batched backend draws uniformly"""
@@ -179,6 +182,10 @@ class TrainConfig:
                                           if f.name not in TASK_KEYS_SET_BY_POLICY + ("target_list",)))
         self.ppo.check()
         self.task_config()
+        if self.train_targets is not None:
+            if self.backend == "warp":
+                raise ConfigError("train_targets needs the cpu backend (the batched worlds draw the env's list)")
+            task_config(env=self.env, fidelity=self.fidelity, target_list=self.train_targets)
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)

@@ -43,3 +43,29 @@ def test_solve_rates_survive_a_checkpoint_of_the_same_list_only(tmp_path):
     other.load(tmp_path / "s.json")  # another list: starts afresh
     assert np.all(other.solved == 0)
     assert json.loads((tmp_path / "s.json").read_text())["targets"] == [1, 2]
+
+
+def test_a_joined_pool_draws_each_list_half_the_time_and_evaluations_keep_the_envs_list():
+    from mjendo import targets
+    from mjendo.config import task_config
+    from mjendo.paths import TRAINING_CONFIG
+    from mjendo.train import load_config, make_env, target_sampler
+
+    cfg = load_config("E", TRAINING_CONFIG, "free-pool")
+    table = targets.load(1)
+    a, f = set(table.lists["A"]), set(table.lists["F"])
+    sampler = target_sampler(cfg)
+    assert len(sampler.targets) == len(a | f) and sampler.active
+    w = sampler.weights(0)
+    in_a = np.array([t in a for t in sampler.targets])
+    assert w[in_a].sum() / w.sum() == pytest.approx(0.5, abs=0.02)  # 65 targets as often as 813 (a few in both)
+    assert cfg.task_config().target_list is None  # periodic evaluations and meta.json: the env's own list A
+    env = make_env(cfg, 0)()
+    assert set(env.unwrapped.task.targets.tolist()) == a | f
+    env.unwrapped.set_target_weights(w)
+    drawn = [env.reset(seed=s)[1]["target_index"] for s in range(200)]
+    assert 0.35 < np.mean([t in a for t in drawn]) < 0.65
+    with pytest.raises(ConfigError, match="unknown target_list 'A\\+A'"):
+        task_config(target_list="A+A")
+    with pytest.raises(ConfigError, match="unknown target_list 'A\\+Q'"):
+        task_config(target_list="A+Q")

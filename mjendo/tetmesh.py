@@ -231,8 +231,8 @@ def gmsh_wall(wall: TetMesh, size_mm: float | None = None, algorithm: str = "hxt
     result does not mark its lumen vertices (``inner`` all False)."""
     try:
         import gmsh
-    except ImportError as exc:
-        raise MeshError("comparing meshers needs gmsh: pip install gmsh") from exc
+    except (ImportError, OSError) as exc:  # OSError: its shared library or the X11/GL ones it links are missing
+        raise MeshError(f"comparing meshers needs gmsh: pip install gmsh ({exc})") from exc
     if algorithm not in GMSH_ALGORITHMS:
         raise MeshError(f"unknown gmsh algorithm {algorithm!r}; valid: {', '.join(GMSH_ALGORITHMS)}")
     bnd = boundary_faces(wall.tets)

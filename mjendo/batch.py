@@ -139,6 +139,9 @@ class BatchedNavigation:
         if isinstance(n_worlds, bool) or not isinstance(n_worlds, int) or n_worlds < 1:
             raise ConfigError(f"n_worlds must be a whole number >= 1, not {n_worlds!r}")
         self.cfg = cfg if cfg is not None else task_config(**task)
+        if self.cfg.randomization is not None:
+            raise ConfigError("randomization (per-episode tissue, load and noise) is not available in the batched "
+                              "backend: train such a policy with --backend cpu")
         if self.cfg.scope_obs:
             raise ConfigError("scope_obs is not available in the batched backend: train such a policy with "
                               "--backend cpu")

@@ -85,6 +85,27 @@ def env_figure(env: str, fidelity: str, repeats: int, steps: int, version: int =
             "control_period_s": e.task.control_dt, "version": version}
 
 
+def episodes_figure(env: str, fidelity: str, steps: int, randomized: bool, seed: int) -> dict:
+    """env steps/s over whole training episodes (128 steps), resets included, with or without randomization."""
+    from mjendo.envs import EndoscopeEnv
+
+    e = EndoscopeEnv(env, fidelity=fidelity, randomization=True if randomized else None)
+    rng = np.random.default_rng(seed)
+    done, episode = 0, 0
+    t0 = time.perf_counter()
+    while done < steps:
+        e.reset(seed=seed * 1000 + episode)
+        episode += 1
+        for _ in range(e.task.cfg.max_steps):
+            a = rng.uniform(-0.4, 0.4, 5)
+            a[4] = abs(a[4])  # keep inserting: contacts happen
+            done += 1
+            _, _, term, trunc, _ = e.step(a)
+            if term or trunc:
+                break
+    return {"figure": "episodes", "env_steps_per_s": done / (time.perf_counter() - t0), "episodes": episode}
+
+
 def training_figure(vec_env: str, steps: int, n_envs: int | None = None) -> dict:
     """PPO throughput for policy E's config, updates included, with a Dummy or Subproc VecEnv."""
     import torch
@@ -167,6 +188,8 @@ def _child(args) -> None:
         out = training_figure(args.vec_env, args.steps, args.n_envs)
     elif args.figure == "env":
         out = env_figure(args.env, args.fidelity, args.repeats, args.steps, args.version)
+    elif args.figure == "episodes":
+        out = episodes_figure(args.env, args.fidelity, args.steps, args.randomized, args.seed)
     elif args.figure == "batched":
         out = batched_figure(args.env, args.fidelity, args.worlds, args.steps, args.solver)
     else:
@@ -229,7 +252,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m mjendo.bench", description=__doc__)
     ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--figure", default="physics",
-                    choices=["physics", "env", "fidelity", "training", "video", "batched"])
+                    choices=["physics", "env", "episodes", "fidelity", "training", "video", "batched"])
     ap.add_argument("--worlds", type=int, default=1, help="batched figure: worlds")
     ap.add_argument("--max-worlds", type=int, help="batched figures: largest world count (default: 8 on a CPU, "
                     "8192 on a GPU)")
@@ -238,6 +261,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--batched-solvers", default="", help="batched figures: constraint solvers to compare, "
                     "comma-separated (CG, Newton; default: each scene's own)")
     ap.add_argument("--solver", help=argparse.SUPPRESS)
+    ap.add_argument("--seed", type=int, default=0, help=argparse.SUPPRESS)
+    ap.add_argument("--randomized", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--vec-env", default="subproc", choices=["subproc", "dummy"])
     ap.add_argument("--n-envs", type=int, help="training figure: environments (default: policy E's config)")
     ap.add_argument("--env", default="DE")
@@ -246,7 +271,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--seconds", type=float, default=1.0, help="simulated seconds per physics repeat")
     ap.add_argument("--steps", type=int, default=200, help="env steps per env repeat")
-    ap.add_argument("--only", choices=["physics", "env", "fidelity", "training", "video", "batched"],
+    ap.add_argument("--only", choices=["physics", "env", "randomization", "fidelity", "training", "video",
+                                       "batched"],
                     help="run one group of figures")
     args = ap.parse_args(argv)
     if args.child:
@@ -268,6 +294,20 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{env + ' ' + fid + ' v' + str(version):<22}{r['env_steps_per_s']:>12.0f}"
                   f"{r['step_cost_over_physics']:>22.3f}{r['env_steps_per_s'] * r['control_period_s']:>16.1f}",
                   flush=True)
+    if args.only in (None, "randomization"):
+        # Alternating repeats, each in a fresh process: a noisy spell on the machine hits both alike.
+        rates: dict[bool, list[float]] = {False: [], True: []}
+        for rep in range(args.repeats):
+            for randomized in rates:
+                r = _run(["--figure", "episodes", "--env", args.env, "--fidelity", args.fidelity, "--steps",
+                          str(max(args.steps, 512)), "--seed", str(rep)] + (["--randomized"] if randomized else []))
+                rates[randomized].append(r["env_steps_per_s"])
+        print(f"\n{'whole episodes, ' + args.env + ' ' + args.fidelity:<30}{'env steps/s':>12}   repeats")
+        for randomized, rs in rates.items():
+            label = "randomized tissue and load" if randomized else "built-in stomach"
+            print(f"{label:<30}{statistics.median(rs):>12.0f}   " + " ".join(f"{x:.0f}" for x in rs))
+        ratio = statistics.median(b / a for a, b in zip(rates[False], rates[True], strict=True))
+        print(f"randomized / built-in (median of paired ratios): {ratio:.2f}", flush=True)
     if args.only in (None, "training"):
         # The variants alternate, so a noisy spell on the machine hits all of them alike. E's config
         # has 2 envs; the x4 row shows what more environments per core would buy.

@@ -229,6 +229,79 @@ class PeriodicLoad:
 
 
 @dataclass(frozen=True)
+class Randomization:
+    """Per-episode ranges of the stomach's tissue and motion and of sensor noise (domain randomization).
+
+    Scales multiply the scene's calibrated values, so the fast and the full stomach randomize alike.
+    Each episode draws every factor independently (log-uniform for the moduli, uniform for the rest).
+    """
+
+    # Young's modulus of the wall (and its stiffness-proportional damping with it): gastric wall moduli
+    # differ several-fold by region, layer, direction and species (porcine biaxial tests: corpus stiffest,
+    # fundus softest, Bauer et al. 2020, Acta Biomater. 116; human vs porcine, Friis et al. 2023, J. Mech.
+    # Behav. Biomed. Mater. 138; layer- and orientation-dependence, Jia et al. 2015, J. Biomech. 48: 651):
+    # a factor 3 either way of the calibrated modulus (Material.young_pa).
+    young_scale: tuple[float, float] = (1 / 3, 3.0)
+    # Tissue damping (Material.damping, Rayleigh beta): relaxation differs by region and layer as much as
+    # stiffness does (the same studies' stress-relaxation tests); a factor 2 either way.
+    damping_scale: tuple[float, float] = (0.5, 2.0)
+    # Breathing load amplitude, x the condition's (f0, 2 f0, 3 f0): tidal volume and so diaphragm excursion
+    # vary from breath to breath and patient to patient; half to one and a half times.
+    load_scale: tuple[float, float] = (0.5, 1.5)
+    # Half period of the square wave: resting adults breathe 12-20 times a minute (cycle 3-5 s).
+    half_period_s: tuple[float, float] = (1.5, 2.5)
+    # Direction of the load within a cone about the cranio-caudal axis: abdominal organs move mostly
+    # cranio-caudally with breathing, with an antero-posterior component up to about half of it
+    # (Langen and Jones 2001, Int. J. Radiat. Oncol. Biol. Phys. 50: 265): up to 30 degrees.
+    load_tilt_deg: float = 30.0
+    # Scope-mucosa friction about the paper's 0.1: mucus-lubricated gastrointestinal mucosa gives
+    # coefficients of a few hundredths to a few tenths (Accoto et al. 2001, on GI friction for locomotion).
+    friction: tuple[float, float] = (0.05, 0.3)
+    # Sensor noise (standard deviations) on the observation: tip force sensors of flexible instruments
+    # resolve tens of mN; electromagnetic trackers locate a tip to about 1 mm RMS.
+    force_noise_n: float = 0.02
+    target_noise_mm: float = 1.0
+    # After new tissue and load parameters are set the wall is let settle this long (the scope held
+    # straight at the cardia) before the episode's first observation: it settles within about 0.5 s.
+    settle_s: float = 0.5
+
+    RANGES = ("young_scale", "damping_scale", "load_scale", "half_period_s", "friction")
+
+    def check(self) -> Randomization:
+        """This randomization, or a ConfigError naming the bad range."""
+        for name in self.RANGES:
+            r = getattr(self, name)
+            ok = isinstance(r, tuple | list) and len(r) == 2 and all(
+                isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x) for x in r)
+            if not ok or not 0 < r[0] <= r[1]:
+                raise ConfigError(f"randomization {name} must be a range (low, high) with 0 < low <= high, "
+                                  f"not {r!r}")
+        for name, hi in (("load_tilt_deg", 90.0), ("force_noise_n", math.inf), ("target_noise_mm", math.inf),
+                         ("settle_s", math.inf)):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int | float) or not 0 <= v <= hi:
+                raise ConfigError(f"randomization {name} must be a number in [0, {hi:g}], not {v!r}")
+        return replace(self, **{n: tuple(float(x) for x in getattr(self, n)) for n in self.RANGES})
+
+    def draw(self, rng: np.random.Generator, nominal_direction) -> dict:
+        """One episode's parameters: scales, half period (s), load direction (unit vector), friction."""
+        def log_uniform(r):
+            return float(np.exp(rng.uniform(np.log(r[0]), np.log(r[1]))))
+
+        n = np.asarray(nominal_direction, float)
+        n = n / np.linalg.norm(n)
+        # Uniform on the spherical cap of half-angle load_tilt_deg about the nominal direction.
+        cos_t = rng.uniform(math.cos(math.radians(self.load_tilt_deg)), 1.0)
+        side = np.cross(n, rng.normal(size=3))
+        side /= np.linalg.norm(side)
+        direction = cos_t * n + math.sqrt(max(0.0, 1.0 - cos_t**2)) * side
+        return {"young_scale": log_uniform(self.young_scale), "damping_scale": log_uniform(self.damping_scale),
+                "load_scale": float(rng.uniform(*self.load_scale)),
+                "half_period_s": float(rng.uniform(*self.half_period_s)),
+                "load_direction": direction, "friction": float(rng.uniform(*self.friction))}
+
+
+@dataclass(frozen=True)
 class Condition:
     """One of the paper's five task conditions ("environments" FE, SE, DE, UE1, UE2).
 
@@ -411,6 +484,9 @@ class TaskConfig:
     force_ref_n: float = 1.0  # the observation's force is force / force_ref
     force_penalty: float = 0.0  # optional safety term: -force_penalty * |F| (N) per step
     randomize_phase: bool = True  # start each episode at a random phase of the load
+    # Per-episode tissue, load and friction and sensor noise (Randomization); None: the built-in stomach.
+    # task_config also takes True (the default ranges) or a dict of Randomization fields.
+    randomization: Randomization | None = None
 
 
 TARGET_LISTS = ("A", "B", "F")  # training, held out, free-space (FE's own from version 1)
@@ -454,6 +530,7 @@ def task_config(**kw) -> TaskConfig:
     for name in ("control_period_s", "cable_mm_per_unit", "insertion_mm_per_unit", "force_ref_n"):
         _finite(name, getattr(cfg, name), 0.0, strict=True)
     _finite("force_penalty", cfg.force_penalty, 0.0, strict=False)
+    cfg = replace(cfg, randomization=_randomization(cfg.randomization))
     cfg = replace(cfg, force_obs=bool(cfg.force_obs), scope_obs=bool(cfg.scope_obs),
                   randomize_phase=bool(cfg.randomize_phase),
                   max_steps=int(cfg.max_steps))
@@ -462,6 +539,24 @@ def task_config(**kw) -> TaskConfig:
 
 
 ACTION_SCALES = ("control_period_s", "cable_mm_per_unit", "insertion_mm_per_unit")
+
+
+def _randomization(value) -> Randomization | None:
+    """TaskConfig.randomization from None/False, True (default ranges), a dict of fields or a Randomization."""
+    if value is None or value is False:
+        return None
+    if value is True:
+        return Randomization().check()
+    if isinstance(value, Randomization):
+        return value.check()
+    if isinstance(value, dict):
+        known = {f.name for f in fields(Randomization)}
+        unknown = sorted(set(value) - known)
+        if unknown:
+            raise ConfigError(f"unknown randomization field(s) {', '.join(unknown)}; valid: {', '.join(sorted(known))}")
+        return Randomization(**{k: tuple(v) if isinstance(v, list) else v for k, v in value.items()}).check()
+    raise ConfigError(f"randomization must be None, True, a dict of Randomization fields or a Randomization, "
+                      f"not {value!r}")
 
 
 def substeps(cfg: TaskConfig) -> int:

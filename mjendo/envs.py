@@ -81,6 +81,7 @@ class EndoscopeEnv(gym.Env):
     | ``max_steps`` | 128 | truncation limit |
     | ``force_penalty`` | 0.0 | weight of the optional force penalty per newton |
     | ``randomize_phase`` | True | start each episode at a random phase of the periodic load (False: phase 0) |
+    | ``randomization`` | None | per-episode tissue stiffness and damping, load amplitude, period and direction, friction and sensor noise: True for the ranges of ``config.Randomization`` (sourced there), or a dict of its fields |
     | ``render_mode`` | None | "rgb_array" |
     | ``camera`` | "external" | "external", "tip_camera" or "both" (side by side) |
     | ``width``, ``height`` | 480, 360 | frame size in pixels (16-4096) |
@@ -88,6 +89,7 @@ class EndoscopeEnv(gym.Env):
 
     ``info`` each step: distance_mm, is_success, contact, force_N (3-vector),
     peak_force_N, target_index, exited, step and the reward terms.
+    ``reset``'s info: target_index, distance_mm and, with ``randomization``, the episode's drawn parameters.
 
     ## Version history
 
@@ -140,6 +142,8 @@ class EndoscopeEnv(gym.Env):
         if options and "target_index" in options:
             obs = self.task.set_target(int(options["target_index"]))
         info = {"target_index": self.task.target, "distance_mm": self.task.distance_mm()}
+        if self.task.episode_params is not None:
+            info["randomization"] = self.task.episode_params
         return obs, info
 
     def step(self, action):

@@ -281,18 +281,20 @@ def solver_study(caps: list[int], tolerances: list[float], fidelity: str = "full
             f"{env} {m['median_mm']:.2f}/{m['max_mm']:.2f}" for env, m in motion.items()), flush=True)
 
 
-def spikes(version: int, episodes: int = 20, seed: int = 0, env: str = "DE", push: float = 0.5) -> dict:
+def spikes(version: int, episodes: int = 20, seed: int = 0, env: str = "DE", push: float = 0.5,
+           randomization=None) -> dict:
     """Contact-force spikes under bang-bang random actions in the fast stomach of a task version.
 
     Every control step records the resultant contact force and how far the tip jumped; the share of steps
     above 1, 2, 10 and 20 N, the largest force, and the tip jump on the steps above 10 N against the rest
     tell a physical lever (large force, small jump) from a numerical event (large force with a jump).
     ``push`` is the chance that a step inserts: at 0.5 (every sign equally likely) a slow scope stays near
-    the cardia, above it the scope is driven into the wall as trained policies drive it.
+    the cardia, above it the scope is driven into the wall as trained policies drive it. ``randomization``:
+    per-episode tissue and load (TaskConfig.randomization), to check its ranges keep the physics sound.
     """
     from mjendo.task import NavigationTask
 
-    task = NavigationTask(env=env, version=version, force_obs=True, max_steps=128)
+    task = NavigationTask(env=env, version=version, force_obs=True, max_steps=128, randomization=randomization)
     rng = np.random.default_rng(seed)
     force, jump, speed = [], [], []
     for _ in range(episodes):
@@ -317,6 +319,42 @@ def spikes(version: int, episodes: int = 20, seed: int = 0, env: str = "DE", pus
             "median_jump_over_2N_mm": float(np.median(j[strong])) if strong.any() else float("nan"),
             "median_jump_over_10N_mm": float(np.median(j[big])) if big.any() else float("nan"),
             "tip_speed_p99_mm_s": float(np.percentile(v, 99)), "tip_speed_max_mm_s": float(v.max())}
+
+
+def realised_modulus(dof: str, young: float = 150e3, poisson: float = 0.3, size_mm: float = 50.0,
+                     n: int = 5) -> tuple[float, float]:
+    """Young's modulus and Poisson ratio a 3D flex of ``dof`` realises for MuJoCo's ``young`` and ``poisson``.
+
+    A free cube of n^3 vertices is pulled by 1 N on opposite faces (tributary-area loads, no gravity) and
+    run to rest; returns (E_realised / young, lateral over axial strain). What the randomization's
+    modulus factor means physically rests on this (docs/physics.md "Randomized tissue").
+    """
+    side = from_mm(size_mm)
+    h = side / (n - 1)
+    xml = f"""<mujoco><option gravity="0 0 0" timestep="0.005" integrator="discrete" tolerance="1e-12"
+      iterations="2000"/><worldbody><flexcomp name="cube" type="grid" count="{n} {n} {n}" spacing="{h} {h} {h}"
+      dim="3" radius="0.0005" mass="0.1" dof="{dof}"><elasticity young="{young}" poisson="{poisson}"
+      damping="0.02"/><contact selfcollide="none" conaffinity="0" contype="0"/></flexcomp></worldbody></mujoco>"""
+    m = mujoco.MjModel.from_xml_string(xml)
+    d = mujoco.MjData(m)
+    adr, nvert = m.flex_vertadr[0], m.flex_vertnum[0]
+    mujoco.mj_forward(m, d)
+    x0 = d.flexvert_xpos[adr:adr + nvert].copy()
+    faces = [np.flatnonzero(np.isclose(x0[:, 0], x0[:, 0].min())), np.flatnonzero(np.isclose(x0[:, 0], x0[:, 0].max()))]
+    load = np.zeros(nvert)
+    for sign, ids in zip((-1.0, 1.0), faces, strict=True):
+        yz = x0[ids, 1:]
+        edge = np.isclose(yz, yz.min(0)) | np.isclose(yz, yz.max(0))
+        w = np.prod(np.where(edge, 0.5, 1.0), axis=1)  # a face's edge vertices carry half, corners a quarter
+        load[ids] = sign * w / w.sum()
+    jac = scene.vertex_jacobian(m, 0, list(range(nvert)), np.arange(m.nq))  # (vertices, 3, nq): linear
+    d.qfrc_applied[:] = jac[:, 0, :].T @ load
+    for _ in range(3000):
+        mujoco.mj_step(m, d)
+    x = d.flexvert_xpos[adr:adr + nvert]
+    axial = (x[faces[1], 0].mean() - x[faces[0], 0].mean() - side) / side
+    lateral = (np.ptp(x[:, 1]) - side) / side
+    return float((1.0 / side**2) / axial / young), float(-lateral / axial)
 
 
 def list_motion(env: str, version: int | None = None) -> dict:
@@ -360,6 +398,9 @@ def main(argv: list[str] | None = None) -> int:
     sp.add_argument("--versions", type=int, nargs="+", default=sorted(VERSIONS))
     sp.add_argument("--episodes", type=int, default=20)
     sp.add_argument("--push", type=float, default=0.5, help="chance that a step inserts (0.5: unbiased)")
+    sp.add_argument("--young-scales", type=float, nargs="+",
+                    help="also with the wall's modulus fixed at each of these factors (the randomization's ends)")
+    sub.add_parser("modulus", help="the Young's modulus and Poisson ratio MuJoCo's 3D flexes realise (a cube)")
     lm = sub.add_parser("motion", help="how far the listed targets move between the two load states")
     lm.add_argument("--envs", nargs="+", default=["DE", "UE1", "UE2"])
     args = ap.parse_args(argv)
@@ -368,10 +409,21 @@ def main(argv: list[str] | None = None) -> int:
             print(", ".join(f"{k} {x:.3g}" if isinstance(x, float) else f"{k} {x}"
                             for k, x in list_motion(env).items()), flush=True)
         return 0
+    if args.cmd == "modulus":
+        for poisson in (0.0, 0.3, 0.45):
+            for dof in ("full", "trilinear"):
+                e, nu = realised_modulus(dof, poisson=poisson)
+                print(f"poisson {poisson}: {dof:<9} realised E / young {e:.3f}, lateral / axial strain {nu:.3f}")
+        return 0
     if args.cmd == "spikes":
         for v in args.versions:
-            row = spikes(v, args.episodes, push=args.push)
-            print(", ".join(f"{k} {x:.4g}" if isinstance(x, float) else f"{k} {x}" for k, x in row.items()), flush=True)
+            rows = [spikes(v, args.episodes, push=args.push)]
+            rows += [{"young_scale": k, **spikes(v, args.episodes, push=args.push,
+                                                 randomization={"young_scale": (k, k)})}
+                     for k in args.young_scales or []]
+            for row in rows:
+                print(", ".join(f"{k} {x:.4g}" if isinstance(x, float) else f"{k} {x}" for k, x in row.items()),
+                      flush=True)
         return 0
     if args.cmd == "refine":
         refinement_study(args.levels)

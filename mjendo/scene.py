@@ -166,7 +166,16 @@ def probe(model: mujoco.MjModel, settle_s: float = 0.5) -> None:
                           "settling): raise young or lower the density")
 
 
-def _vertex_jacobian(model: mujoco.MjModel, flex_id: int, vertices: list[int],
+def flex_joints(model: mujoco.MjModel, flex_id: int) -> np.ndarray:
+    """Joint ids of the flex's degrees of freedom (slides of its vertex or node bodies), in order."""
+    bodies = {model.flex_vertbodyid[model.flex_vertadr[flex_id] + i] for i in range(model.flex_vertnum[flex_id])}
+    bodies |= {model.flex_nodebodyid[model.flex_nodeadr[flex_id] + i] for i in range(model.flex_nodenum[flex_id])}
+    bodies.discard(-1)
+    bodies.discard(0)
+    return np.array(sorted(j for j in range(model.njnt) if model.jnt_bodyid[j] in bodies), dtype=np.int64)
+
+
+def vertex_jacobian(model: mujoco.MjModel, flex_id: int, vertices: list[int],
                      dofs: np.ndarray) -> np.ndarray:
     """d(vertex positions)/d(qpos of the flex dofs): (len(vertices), 3, len(dofs)).
 
@@ -232,11 +241,7 @@ def _add_anchors_and_load(spec: mujoco.MjSpec, model: mujoco.MjModel,
     interpolated (trilinear) dofs.
     """
     flex_id = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_FLEX, FLEX)
-    bodies = {model.flex_vertbodyid[model.flex_vertadr[flex_id] + i] for i in range(model.flex_vertnum[flex_id])}
-    bodies |= {model.flex_nodebodyid[model.flex_nodeadr[flex_id] + i] for i in range(model.flex_nodenum[flex_id])}
-    bodies.discard(-1)
-    bodies.discard(0)
-    dofs = np.array(sorted(j for j in range(model.njnt) if model.jnt_bodyid[j] in bodies))
+    dofs = flex_joints(model, flex_id)
     for j in dofs:
         body = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, model.jnt_bodyid[j])
         axis = "xyz"[int(np.argmax(np.abs(model.jnt_axis[j])))]
@@ -255,7 +260,7 @@ def _add_anchors_and_load(spec: mujoco.MjSpec, model: mujoco.MjModel,
             a.biastype = mujoco.mjtBias.mjBIAS_AFFINE
             a.biasprm[1] = -mat.foundation_per_s2 * mass
     anchored = [] if cfg.fidelity.dof == "full" else st.fixed  # full: pinned in the flexcomp
-    jac = _vertex_jacobian(model, flex_id, anchored + st.forced, model.jnt_qposadr[dofs])
+    jac = vertex_jacobian(model, flex_id, anchored + st.forced, model.jnt_qposadr[dofs])
     for k, v in enumerate(anchored):
         for a, axis in enumerate("xyz"):
             t = spec.add_tendon(name=f"anchor{v}_{axis}")

@@ -15,7 +15,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from mjendo import endoscope, scene
+from mjendo import anatomy, endoscope, scene
 from mjendo.config import CURRENT_VERSION, PeriodicLoad, condition, load_gain
 
 
@@ -82,6 +82,13 @@ class Simulator:
         # What the load actuator is driven with: f0 times the scene's calibrated gain at this load level.
         self.load_amplitude = self.f0 * self._load_gain(self.model, self.env.load_multiplier)
         self.half_period = load.half_period_s
+        self._nominal_direction = np.asarray(load.direction, float) / np.linalg.norm(load.direction)
+        self._along = 1.0  # share of the load along the scene's direction (its tendon): d . n
+        self._across: np.ndarray | None = None  # generalized force of the rest of a tilted load's direction
+        self._axes: np.ndarray | None = None
+        self._scene_values = (self.load_amplitude, self.half_period, self.model.flex_stiffness.copy(),
+                              self.model.flex_damping.copy(), self.model.geom_friction[:, 0].copy(),
+                              self.model.flex_friction[:, 0].copy())
         self.reset()
 
     def _ids(self, m: mujoco.MjModel) -> None:
@@ -192,6 +199,59 @@ class Simulator:
         if rgba is not None:
             self.model.site_rgba[self.target_site] = rgba
 
+    # ------------------------------------------------------- randomization
+    @property
+    def load_direction(self) -> np.ndarray:
+        """The scene's direction of the periodic load (unit, world frame)."""
+        return self._nominal_direction.copy()
+
+    def set_tissue(self, young_scale: float = 1.0, damping_scale: float = 1.0) -> None:
+        """Scale the wall's Young's modulus and its damping from the scene's values.
+
+        At a fixed Poisson ratio every element stiffness matrix is linear in the modulus, so scaling
+        MuJoCo's precomputed ``flex_stiffness`` is the same as compiling the scene with the scaled modulus.
+        """
+        m = self.model
+        m.flex_stiffness[:] = self._scene_values[2] * young_scale
+        m.flex_damping[:] = self._scene_values[3] * damping_scale
+
+    def set_friction(self, friction: float) -> None:
+        """Sliding friction of the scope against the wall (MuJoCo takes the larger of the two sides')."""
+        m = self.model
+        m.geom_friction[self.scope_geom, 0] = friction
+        if self.has_stomach:
+            m.flex_friction[self.flex, 0] = friction
+
+    def set_load(self, scale: float = 1.0, half_period: float | None = None, direction=None) -> None:
+        """The periodic load: amplitude x ``scale`` of the condition's, half period (s), direction (world)."""
+        self.load_amplitude = self._scene_values[0] * scale
+        self.half_period = self._scene_values[1] if half_period is None else float(half_period)
+        if direction is None or not self.has_stomach:
+            self._along, self._across = 1.0, None
+            return
+        d = np.asarray(direction, float) / np.linalg.norm(direction)
+        n = self._nominal_direction
+        self._along = float(d @ n)
+        self._across = (d - self._along * n) @ self._load_axes()
+
+    def restore_scene_values(self) -> None:
+        """Tissue, friction and load as the scene file has them."""
+        v = self._scene_values
+        self.set_tissue()
+        self.model.geom_friction[:, 0] = v[4]
+        self.model.flex_friction[:, 0] = v[5]
+        self.set_load()
+
+    def _load_axes(self) -> np.ndarray:
+        """Generalized force of 1 N along each world axis on every forced vertex: (3, nv)."""
+        if self._axes is None:
+            m = self.model
+            joints = scene.flex_joints(m, self.flex)
+            jac = scene.vertex_jacobian(m, self.flex, anatomy.load().forced, m.jnt_qposadr[joints]).sum(0)
+            self._axes = np.zeros((3, m.nv))
+            self._axes[:, m.jnt_dofadr[joints]] = jac
+        return self._axes
+
     # ---------------------------------------------------------------- control
     def set_controls(self, cable_pull: np.ndarray, insertion: float) -> None:
         """Cable pulls (m, one per cable, negative pays out) and insertion (m), clipped."""
@@ -210,7 +270,10 @@ class Simulator:
         m, d = self.model, self.data
         for _ in range(n):
             if self.load_act >= 0:
-                d.ctrl[self.load_act] = square_wave(d.time, self.load_amplitude, self.half_period)
+                wave = square_wave(d.time, self.load_amplitude, self.half_period)
+                d.ctrl[self.load_act] = wave * self._along
+                if self._across is not None:
+                    d.qfrc_applied[:] = wave * self._across
             if self.support_body.size:
                 self.support()
             mujoco.mj_step(m, d)

@@ -127,6 +127,9 @@ class NavigationTask:
         self.steps = 0
         self.peak_force = 0.0
         self.contact = self.sim.contact()  # a valid reading before the first reset (dm_env asks specs first)
+        # This episode's drawn tissue, load and friction (cfg.randomization), and its sensor-noise stream.
+        self.episode_params: dict | None = None
+        self._noise = np.random.default_rng(0)
 
     # ------------------------------------------------------------- episodes
     def _settle(self) -> list[np.ndarray]:
@@ -177,9 +180,24 @@ class NavigationTask:
         self.steps = 0
         self.peak_force = 0.0
         sim.set_controls(self.pulls, self.insertion)
+        if self.cfg.randomization is not None:
+            self._randomize(rng)
         mujoco.mj_forward(sim.model, sim.data)
         self.contact = sim.contact()
         return self.set_target(int(rng.choice(self.targets, p=self.target_p)))
+
+    def _randomize(self, rng: np.random.Generator) -> None:
+        """Draw this episode's tissue, load and friction, and let the wall settle under them."""
+        r, sim = self.cfg.randomization, self.sim
+        p = r.draw(rng, sim.load_direction)
+        self._noise = np.random.default_rng(int(rng.integers(2**63)))
+        self.episode_params = {**p, "load_direction": [round(float(x), 6) for x in p["load_direction"]]}
+        if not sim.has_stomach:
+            return
+        sim.set_tissue(p["young_scale"], p["damping_scale"])
+        sim.set_friction(p["friction"])
+        sim.set_load(p["load_scale"], p["half_period_s"], p["load_direction"])
+        sim.step(int(round(r.settle_s / sim.model.opt.timestep)))
 
     def set_target_weights(self, weights) -> None:
         """Relative draw weight of each listed target, in list order (training's TargetSampler); None: uniform."""
@@ -286,6 +304,11 @@ class NavigationTask:
             delta = self.target_pos() - sim.tip_pos()
         scope = (np.array([sim.insertion()]), (sim.tip_pos() - self.origin)[None], sim.tip_axis()[None]) \
             if self.cfg.scope_obs else None
+        force = self.contact.force
+        r = self.cfg.randomization
+        if r is not None:  # sensor noise: the tracker's on the target vector, the tip sensor's on the force
+            delta = delta + self._noise.normal(0.0, from_mm(r.target_noise_mm), 3)
+            force = force + self._noise.normal(0.0, r.force_noise_n, 3)
         return mdp.observe(np, self.cfg, delta[None], sim.tip_vel()[None], sim.cable_lengths()[None],
                            np.array([self.prev_axial]), np.array([float(self.contact.active)]),
-                           self.contact.force[None], self.obs_low, self.obs_high, scope)[0]
+                           force[None], self.obs_low, self.obs_high, scope)[0]

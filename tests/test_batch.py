@@ -403,3 +403,8 @@ def test_without_mujoco_warp_the_batched_backend_says_how_to_install_it(monkeypa
 def test_the_scope_observation_is_refused_by_the_batched_backend():
     with pytest.raises(ConfigError, match="scope_obs is not available in the batched backend.*--backend cpu"):
         BatchedNavigation(1, env="FE", device="cpu", scope_obs=True)
+
+
+def test_randomization_is_refused_by_the_batched_backend():
+    with pytest.raises(ConfigError, match="randomization .* is not available in the batched backend.*--backend cpu"):
+        BatchedNavigation(1, env="DE", device="cpu", randomization=True)

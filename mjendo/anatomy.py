@@ -13,13 +13,13 @@ from __future__ import annotations
 
 import argparse
 import json
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 
 import numpy as np
 
 from mjendo import cli, paths, tetmesh
-from mjendo.config import PAPER_N_FIXED, PAPER_N_FORCED, Endoscope, StomachShape
+from mjendo.config import PAPER_N_FIXED, PAPER_N_FORCED, AnatomyRanges, Endoscope, StomachShape
 from mjendo.tetmesh import GMSH_ALGORITHMS, MeshError, TetMesh, extrude_wall, gmsh_wall, quality
 from mjendo.units import from_mm, to_mm
 
@@ -166,12 +166,13 @@ def free_workspace(entry: np.ndarray, axis: np.ndarray, scope: Endoscope,
 
 
 def choose_sets(mesh: TetMesh, entry: np.ndarray, axis: np.ndarray,
-                scope: Endoscope, band_mm: float = 20.0) -> dict:
+                scope: Endoscope, band_mm: float = 20.0, pylorus: np.ndarray | None = None) -> dict:
     """Fixed, forced and target vertex sets, deterministic.
 
     * fixed: two outer vertices at the cardia (gastro-oesophageal junction,
       held by the hiatus) and the outer vertex farthest along the antrum
-      (pylorus, held by the duodenum);
+      (pylorus, held by the duodenum): the one nearest ``pylorus`` (the pyloric end of a built lumen),
+      or for a surface without that landmark the farthest towards +x and up;
     * forced: the two outer vertices highest on the fundus (under the
       diaphragm, which drives breathing motion);
     * targets: lumen vertices within ``band_mm`` of the free-space workspace
@@ -186,8 +187,9 @@ def choose_sets(mesh: TetMesh, entry: np.ndarray, axis: np.ndarray,
     # Second cardia anchor: the nearest outer vertex on the far side of the rim.
     far_side = [i for i in near_cardia[1:12] if np.dot(p[i] - entry, p[first] - entry) < 0]
     second = far_side[0] if far_side else near_cardia[1]
-    pylorus = outer_ids[np.argmax(p[outer_ids] @ np.array([1.0, 0.0, 0.3]))]
-    fixed = [int(first), int(second), int(pylorus)]
+    end = outer_ids[np.argmax(p[outer_ids] @ np.array([1.0, 0.0, 0.3]))] if pylorus is None \
+        else outer_ids[np.argmin(np.linalg.norm(p[outer_ids] - pylorus, axis=1))]
+    fixed = [int(first), int(second), int(end)]
     forced = [int(i) for i in outer_ids[np.argsort(-p[outer_ids, 2])][:PAPER_N_FORCED]]
     assert len(fixed) == PAPER_N_FIXED
 
@@ -241,12 +243,29 @@ def build(shape: StomachShape | None = None, scope: Endoscope | None = None) -> 
     lesser = np.concatenate([outer[lm["lesser_meridian"][ic:]], outer[[lm["bottom"]]]])
     info["lesser_curvature_mm"] = float(to_mm(_polyline_length(lesser)))
     info["wall_thickness_mm"] = shape.wall_thickness_mm
-    sets = choose_sets(mesh, lm["entry"], lm["axis"], scope)
+    sets = choose_sets(mesh, lm["entry"], lm["axis"], scope, pylorus=verts[lm["bottom"]])
     info.update(tetmesh.quality(mesh))
     info["free_reachable_targets"] = sets.pop("free_reachable")
     # Geometric candidates; `python -m mjendo.targets` keeps those reached in simulation.
     info["candidates"] = sorted(sets["targets_a"] + sets["targets_b"])
     return Stomach(mesh, lm["entry"], lm["axis"], info=info, **sets)
+
+
+def sample_shape(seed: int, ranges: AnatomyRanges | None = None) -> StomachShape:
+    """The shape of generated stomach ``seed``: every AnatomyRanges field drawn uniformly, deterministically."""
+    ranges = ranges or AnatomyRanges()
+    rng = np.random.default_rng([seed, 20261125])  # a stream of its own, not the training seeds'
+    drawn = {f.name: round(float(rng.uniform(*getattr(ranges, f.name))), 2) for f in fields(AnatomyRanges)}
+    return replace(StomachShape(), **drawn)
+
+
+def generate(seed: int, scope: Endoscope | None = None) -> Stomach:
+    """Generated stomach ``seed``: a sampled shape built like the built-in one (same wall, same rules)."""
+    shape = sample_shape(seed)
+    st = build(shape, scope)
+    st.info["seed"] = seed
+    st.info["shape"] = asdict(shape)
+    return st
 
 
 def from_surface(path: Path, entry_mm, axis, thickness_mm: float = 5.0,
@@ -360,6 +379,9 @@ def main(argv: list[str] | None = None) -> int:
     b.add_argument("--axis", type=float, nargs=3, metavar=("DX", "DY", "DZ"),
                    help="insertion direction into the lumen")
     b.add_argument("--thickness", type=float, default=5.0, help="wall thickness, mm")
+    g = sub.add_parser("generate", help="print the sizes of generated stomachs (shapes drawn from AnatomyRanges)")
+    g.add_argument("--seeds", type=int, nargs="+", default=list(range(8)))
+    g.add_argument("--figure", type=Path, help="also draw them side by side (e.g. docs/media/anatomies.png)")
     r = sub.add_parser("report", help="print sizes and mesh quality")
     r.add_argument("--dir", type=Path, default=STOMACH_DIR)
     m = sub.add_parser("meshers", help="the built-in wall by prism extrusion against gmsh (needs gmsh)")
@@ -372,6 +394,19 @@ def main(argv: list[str] | None = None) -> int:
     def command() -> None:
         if args.cmd == "meshers":
             print(meshers_table(args.sizes))
+            return
+        if args.cmd == "generate":
+            stomachs = [generate(seed) for seed in args.seeds]
+            for st in stomachs:
+                i = st.info
+                print(f"seed {i['seed']}: length {i['length_mm']:.0f} mm, greater curvature "
+                      f"{i['greater_curvature_mm']:.0f} mm, lesser {i['lesser_curvature_mm']:.0f} mm, wall "
+                      f"{i['wall_thickness_mm']:.1f} mm, {len(st.mesh.tets)} tets, min radius ratio "
+                      f"{i['min_radius_ratio']:.2f}")
+            if args.figure:
+                from mjendo import figures
+
+                print(f"wrote {figures.anatomies(stomachs, args.figure)}")
             return
         if args.cmd == "build":
             st = from_surface(args.surface, args.entry, args.axis, args.thickness) if args.surface else build()

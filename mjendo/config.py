@@ -57,6 +57,34 @@ class StomachShape:
 
 
 @dataclass(frozen=True)
+class AnatomyRanges:
+    """Ranges (mm, degrees) from which generated stomachs draw their StomachShape, each uniformly.
+
+    Sources: MRI of healthy adults after a meal, stomachs 184-226 mm long and 65-102 mm across at their
+    widest (4 subjects, "A novel method for time-dependent numerical modeling of gastric motility
+    directly from magnetic resonance imaging", IEEE EMBC 2020); gastric volume varies between people by
+    about a third fasting and a sixth fed (SPECT, 433 subjects, coefficient of variation 32.6 % / 16.0 %:
+    Breen et al. 2011, Neurogastroenterol. Motil. 23: 308); wall thickness on CT 2.0 +- 0.4 mm in the
+    distended body and 5.1 +- 1.6 mm in the antrum (Pickhardt and Asher 2003, AJR 181: 973). The bend
+    of the J (the angular incisure) spans the J-shaped to the steer-horn stomach of anatomy texts; no
+    measured distribution of it was found, so its range is a judgement, as are the antrum's and
+    pylorus's (about a quarter either way of the built-in values).
+    """
+
+    fundus_radius_mm: tuple[float, float] = (32.0, 48.0)  # lumen; 65-102 mm across with the wall
+    body_radius_mm: tuple[float, float] = (32.0, 48.0)
+    body_length_mm: tuple[float, float] = (40.0, 80.0)  # with the rest: 184-226 mm long (measured per anatomy)
+    bend_radius_mm: tuple[float, float] = (40.0, 60.0)
+    bend_angle_deg: tuple[float, float] = (80.0, 120.0)  # J-shaped to steer-horn
+    antrum_radius_mm: tuple[float, float] = (20.0, 32.0)
+    antrum_length_mm: tuple[float, float] = (10.0, 35.0)
+    pylorus_radius_mm: tuple[float, float] = (9.0, 13.0)
+    # One tet layer: thinner than 4 mm flattens the tets of a 20 mm mesh (the refinement study's limit).
+    wall_thickness_mm: tuple[float, float] = (4.0, 6.0)
+    cardia_arclength_mm: tuple[float, float] = (8.0, 18.0)  # how far below the fundus dome the cardia opens
+
+
+@dataclass(frozen=True)
 class Material:
     """Linear elastic stomach wall (MuJoCo flex ``<elasticity>``)."""
 

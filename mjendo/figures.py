@@ -295,3 +295,38 @@ def target_map(wall: np.ndarray, points: np.ndarray, classes: np.ndarray, lists:
     fig.savefig(out, dpi=110)
     plt.close(fig)
     return out
+
+
+def anatomies(stomachs: list, out: Path, columns: int = 4) -> Path:
+    """Generated stomachs side by side in the J's plane (x-z): the lumen's triangles, cardia, anchors, loads."""
+    from matplotlib.collections import PolyCollection
+
+    plt = _plt()
+    rows = -(-len(stomachs) // columns)
+    fig, axes = plt.subplots(rows, columns, figsize=(3.2 * columns, 3.6 * rows), squeeze=False)
+    for ax, st in zip(axes.flat, stomachs, strict=False):
+        p = to_mm(st.mesh.points)
+        inner = st.mesh.inner
+        lumen = [f for f in st.mesh.boundary_faces() if inner[f].all()]
+        ax.add_collection(PolyCollection([p[f][:, [0, 2]] for f in lumen], facecolors="#f2c6c6",
+                                         edgecolors="#b05050", linewidths=0.3, alpha=0.6))
+        ax.scatter(p[st.fixed, 0], p[st.fixed, 2], s=30, c="k", marker="x", label="fixed")
+        ax.scatter(p[st.forced, 0], p[st.forced, 2], s=30, c="#2060b0", marker="^", label="forced")
+        e = to_mm(st.entry)
+        a = st.axis * 40.0
+        ax.annotate("", xy=(e[0] + a[0], e[2] + a[2]), xytext=(e[0], e[2]),
+                    arrowprops={"arrowstyle": "->", "color": "#208020"})
+        i = st.info
+        ax.set_title(f"seed {i.get('seed', '-')}: {i['length_mm']:.0f} mm, wall {i['wall_thickness_mm']:.1f} mm",
+                     fontsize=9)
+        ax.set_aspect("equal")
+        ax.autoscale_view()
+        ax.set_xticks([])
+        ax.set_yticks([])
+    for ax in list(axes.flat)[len(stomachs):]:
+        ax.axis("off")
+    axes.flat[0].legend(loc="lower left", fontsize=7)
+    fig.tight_layout()
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+    return out

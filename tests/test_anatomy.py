@@ -141,3 +141,35 @@ def test_the_mesher_comparison_without_gmsh_says_how_to_install_it(monkeypatch, 
     monkeypatch.setitem(sys.modules, "gmsh", None)
     assert anatomy.main(["meshers", "--sizes"]) == 2
     assert "comparing meshers needs gmsh: pip install gmsh" in capsys.readouterr().err
+
+
+def test_generated_stomachs_are_deterministic_plausible_and_differ():
+    from dataclasses import fields
+
+    from mjendo.config import AnatomyRanges
+
+    stomachs = [anatomy.generate(seed) for seed in range(6)]
+    again = anatomy.generate(3)
+    np.testing.assert_array_equal(again.mesh.points, stomachs[3].mesh.points)
+    assert again.fixed == stomachs[3].fixed and again.forced == stomachs[3].forced
+    lengths = [st.info["length_mm"] for st in stomachs]
+    assert len({round(x) for x in lengths}) == len(lengths)  # every seed its own stomach
+    for st in stomachs:
+        shape = st.info["shape"]
+        for f in fields(AnatomyRanges):
+            lo, hi = getattr(AnatomyRanges(), f.name)
+            assert lo <= shape[f.name] <= hi, f.name
+        assert 160.0 < st.info["length_mm"] < 235.0  # adult stomachs on MRI: 184-226 mm
+        assert st.mesh.volumes().min() > 0 and st.info["min_radius_ratio"] > 0.1
+        # The pyloric anchor sits at the pyloric end, the loaded vertices on top of the fundus.
+        verts, _, lm = anatomy.lumen_surface(anatomy.sample_shape(st.info["seed"]))
+        assert np.linalg.norm(st.mesh.points[st.fixed[2]] - verts[lm["bottom"]]) < 0.015
+        top = st.mesh.points[:, 2].max()
+        assert all(top - st.mesh.points[v, 2] < 0.010 for v in st.forced)  # the apex and its first ring
+
+
+def test_generate_command_prints_sizes_and_draws(tmp_path, capsys):
+    out = tmp_path / "anatomies.png"
+    assert anatomy.main(["generate", "--seeds", "0", "1", "--figure", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert text.count("greater curvature") == 2 and out.stat().st_size > 10_000

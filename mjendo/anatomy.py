@@ -12,6 +12,7 @@ Frame (metres): z up, the J lies in the x-z plane, the body descends along
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
@@ -268,6 +269,27 @@ def generate(seed: int, scope: Endoscope | None = None) -> Stomach:
     return st
 
 
+def anatomy_dir(seed: int) -> Path:
+    """Folder of generated stomach ``seed``: the benchmark's committed one, else built once into the cache."""
+    committed = paths.ANATOMIES_DIR / f"seed-{seed}"
+    if (committed / "stomach.json").exists():
+        return committed
+    key = hashlib.sha256(json.dumps(asdict(sample_shape(seed))).encode()).hexdigest()[:10]
+    cached = paths.CACHE / "anatomies" / f"seed-{seed}-{key}"
+    if not (cached / "stomach.json").exists():
+        save(generate(seed), cached)
+    return cached
+
+
+def stomach_dir(anatomy: int | str | Path | None) -> Path:
+    """The folder of a task's stomach: None the built-in one, a seed a generated one, a path a user's own."""
+    if anatomy is None:
+        return STOMACH_DIR
+    if isinstance(anatomy, int | np.integer) and not isinstance(anatomy, bool):
+        return anatomy_dir(int(anatomy))
+    return Path(anatomy)
+
+
 def from_surface(path: Path, entry_mm, axis, thickness_mm: float = 5.0,
                  entry_radius_mm: float = 15.0, scope: Endoscope | None = None) -> Stomach:
     """A stomach from a user's closed lumen surface (millimetres)."""
@@ -372,7 +394,8 @@ def main(argv: list[str] | None = None) -> int:
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = ap.add_subparsers(dest="cmd", required=True)
     b = sub.add_parser("build", help="generate the stomach mesh and vertex sets")
-    b.add_argument("--out", type=Path, default=STOMACH_DIR)
+    b.add_argument("--out", type=Path, help="folder to write (required with --surface; default: the built-in "
+                   "stomach's, models/stomach)")
     b.add_argument("--surface", type=Path, help="your closed lumen surface, mm")
     b.add_argument("--entry", type=float, nargs=3, metavar=("X", "Y", "Z"),
                    help="cardia point on your surface, mm")
@@ -390,6 +413,11 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     if getattr(args, "surface", None) and (args.entry is None or args.axis is None):
         ap.error("--surface needs --entry and --axis (the cardia and insertion direction)")
+    if getattr(args, "surface", None) and args.out is None:
+        ap.error("--surface needs --out FOLDER: your stomach gets a folder of its own (the built-in one stays); "
+                 "then `python -m mjendo.targets map --anatomy FOLDER`")
+    if args.cmd == "build" and args.out is None:
+        args.out = STOMACH_DIR
 
     def command() -> None:
         if args.cmd == "meshers":
@@ -411,8 +439,9 @@ def main(argv: list[str] | None = None) -> int:
         if args.cmd == "build":
             st = from_surface(args.surface, args.entry, args.axis, args.thickness) if args.surface else build()
             save(st, args.out)
-            print(f"wrote {args.out}/stomach.msh and stomach.json (then run `python -m mjendo.targets` "
-                  "to keep the targets reached in simulation)")
+            then = "" if args.out.resolve() == STOMACH_DIR.resolve() else f" --anatomy {args.out}"
+            print(f"wrote {args.out}/stomach.msh and stomach.json (then `python -m mjendo.targets map{then}` "
+                  "measures its target map)")
         else:
             st = load(args.dir)
         shown = {k: v for k, v in st.info.items() if not isinstance(v, list)}

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, fields, replace
+from pathlib import Path
 
 import numpy as np
 
@@ -515,6 +516,9 @@ class TaskConfig:
     # Per-episode tissue, load and friction and sensor noise (Randomization); None: the built-in stomach.
     # task_config also takes True (the default ranges) or a dict of Randomization fields.
     randomization: Randomization | None = None
+    # Which stomach: None the built-in one; a whole number a generated one (anatomy.generate, its seed);
+    # a path a folder built by `python -m mjendo.anatomy build` (yours) with its target map.
+    anatomy: int | str | None = None
 
 
 TARGET_LISTS = ("A", "B", "F")  # training, held out, free-space (FE's own from version 1)
@@ -559,6 +563,8 @@ def task_config(**kw) -> TaskConfig:
         _finite(name, getattr(cfg, name), 0.0, strict=True)
     _finite("force_penalty", cfg.force_penalty, 0.0, strict=False)
     cfg = replace(cfg, randomization=_randomization(cfg.randomization))
+    if cfg.anatomy is not None:
+        _anatomy(cfg)
     cfg = replace(cfg, force_obs=bool(cfg.force_obs), scope_obs=bool(cfg.scope_obs),
                   randomize_phase=bool(cfg.randomize_phase),
                   max_steps=int(cfg.max_steps))
@@ -567,6 +573,21 @@ def task_config(**kw) -> TaskConfig:
 
 
 ACTION_SCALES = ("control_period_s", "cable_mm_per_unit", "insertion_mm_per_unit")
+
+
+def _anatomy(cfg: TaskConfig) -> None:
+    """A ConfigError unless ``cfg.anatomy`` names a stomach a task can run in."""
+    a = cfg.anatomy
+    if isinstance(a, bool) or not isinstance(a, int | np.integer | str):
+        raise ConfigError(f"anatomy must be None (the built-in stomach), a seed (a whole number >= 0) or the "
+                          f"folder of a stomach you built, not {a!r}")
+    if isinstance(a, int | np.integer) and a < 0:
+        raise ConfigError(f"anatomy seed must be >= 0, not {a}")
+    if isinstance(a, str) and not (Path(a) / "stomach.json").exists():
+        raise ConfigError(f"anatomy {a!r} holds no stomach.json; build one with `python -m mjendo.anatomy build "
+                          f"--surface YOUR.stl --entry X Y Z --axis DX DY DZ --out {a}`")
+    if cfg.version < 1:
+        raise ConfigError("other anatomies exist from task version 1 (their targets are points of a map)")
 
 
 def _randomization(value) -> Randomization | None:

@@ -21,10 +21,13 @@ DATA = _CHECKOUT if IN_CHECKOUT else PACKAGE / "_data"
 MODELS = DATA / "models"
 STOMACH_DIR = MODELS / "stomach"
 SCENES_DIR = MODELS / "scenes"
+ANATOMIES_DIR = MODELS / "anatomies"  # the anatomy benchmark's stomachs and target maps, by seed
 TRAINING_CONFIG = DATA / "train" / "policies.yaml"
 # Outputs: the checkout (runs/ is ignored by git), or wherever an installed mjendo is run.
 WORK = _CHECKOUT if IN_CHECKOUT else Path.cwd()
 RUNS = WORK / "runs"
+# Built on demand and kept: generated stomachs and the scenes of other stomachs (MJENDO_CACHE moves it).
+CACHE = Path(os.environ.get("MJENDO_CACHE", Path.home() / ".cache" / "mjendo"))
 
 
 def policies_dir() -> Path:

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import hashlib
+import os
 import re
 from pathlib import Path
 
@@ -44,13 +45,33 @@ def scene_name(cfg: SceneConfig) -> str:
     return f"stomach_{cfg.fidelity.name}" if cfg.has_stomach else "FE"
 
 
-def scene_path(env: str, fidelity: str = "fast", version: int = CURRENT_VERSION) -> Path:
-    """Committed scene file an environment runs in (FE has no stomach: one file for every fidelity).
+def scene_path(env: str, fidelity: str = "fast", version: int = CURRENT_VERSION,
+               stomach: Path | None = None) -> Path:
+    """Scene file an environment runs in (FE has no stomach: one file for every fidelity).
 
-    The current task version's scenes lie in models/scenes/, older versions' in models/scenes/v<N>/.
+    The built-in stomach's are committed: the current task version's in models/scenes/, older versions' in
+    models/scenes/v<N>/. Another stomach's (``stomach``: its folder) are built once into the cache, named by
+    a hash of its mesh and sets, the task version and this module's builder.
     """
-    folder = SCENES_DIR if version == CURRENT_VERSION else SCENES_DIR / f"v{version}"
-    return folder / f"{scene_name(scene_config(env, fidelity, version))}.xml"
+    name = f"{scene_name(scene_config(env, fidelity, version))}.xml"
+    if stomach is None or Path(stomach).resolve() == anatomy.STOMACH_DIR.resolve():
+        folder = SCENES_DIR if version == CURRENT_VERSION else SCENES_DIR / f"v{version}"
+        return folder / name
+    stomach = Path(stomach)
+    h = hashlib.sha256(f"{version} {mujoco.__version__}".encode())
+    for part in ("stomach.json", "stomach.msh"):
+        h.update((stomach / part).read_bytes())
+    h.update(Path(__file__).read_bytes())
+    path = paths.CACHE / "scenes" / h.hexdigest()[:16] / name
+    if not path.exists():
+        path.parent.mkdir(parents=True, exist_ok=True)
+        cfg = scene_config(env, fidelity, version)
+        spec = build_spec(cfg, anatomy.load(stomach), stomach)
+        probe(spec.compile())
+        tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp")
+        tmp.write_text(spec.to_xml())
+        tmp.replace(path)  # whole or not at all: parallel builders may race
+    return path
 
 
 def fingerprint(fidelity: str = "fast", version: int = CURRENT_VERSION) -> str:

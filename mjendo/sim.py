@@ -67,9 +67,11 @@ class Simulator:
     """One scene's model and data with named access to what the task needs."""
 
     def __init__(self, env: str = "DE", fidelity: str = "fast", path: Path | None = None,
-                 load: PeriodicLoad | None = None, version: int = CURRENT_VERSION):
+                 load: PeriodicLoad | None = None, version: int = CURRENT_VERSION, stomach: Path | None = None):
         self.env = condition(env)
-        self.path = Path(path) if path else scene.scene_path(env, fidelity, version)
+        # The stomach's folder (None: the built-in one): its scenes, and the vertices the load pushes.
+        self.stomach_dir = Path(stomach) if stomach is not None else anatomy.STOMACH_DIR
+        self.path = Path(path) if path else scene.scene_path(env, fidelity, version, stomach)
         if not self.path.exists():
             raise FileNotFoundError(f"scene file {self.path} is missing; regenerate the scenes "
                                     "with `make models` (python -m mjendo.scene)")
@@ -247,7 +249,8 @@ class Simulator:
         if self._axes is None:
             m = self.model
             joints = scene.flex_joints(m, self.flex)
-            jac = scene.vertex_jacobian(m, self.flex, anatomy.load().forced, m.jnt_qposadr[joints]).sum(0)
+            forced = anatomy.load(self.stomach_dir).forced
+            jac = scene.vertex_jacobian(m, self.flex, forced, m.jnt_qposadr[joints]).sum(0)
             self._axes = np.zeros((3, m.nv))
             self._axes[:, m.jnt_dofadr[joints]] = jac
         return self._axes

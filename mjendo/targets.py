@@ -45,6 +45,7 @@ MIN_CARDIA_MM = 35.0  # targets this close to the cardia are in the scope's blin
 SPACING_MM = PAPER_SUCCESS_MM  # listed targets at least the success distance apart: none counts another as reached
 CONTACT_SHARE = 0.65  # of lists A and B, about two thirds: the paper's A reaches 26-34 % outside FE
 SPLIT = "AB"  # A and B alike: B holds 50 or more targets, enough to report success per target
+MAX_FREE_OTHER = 200  # list F of another stomach's map: enough free targets for FE and training pools
 
 
 @dataclass
@@ -78,6 +79,11 @@ class TargetTable:
         return np.einsum("nk,nkd->nd", self.bary[r], vertices[self.tris[r]])
 
 
+def map_path(stomach: Path) -> Path:
+    """The target map of a stomach's folder."""
+    return Path(stomach) / TARGETS_FILE.name
+
+
 def load(version: int = CURRENT_VERSION, path: Path = TARGETS_FILE) -> TargetTable:
     """The target table of a task version (version 0: lumen vertices; later: surface points)."""
     if version == 0:
@@ -88,7 +94,7 @@ def load(version: int = CURRENT_VERSION, path: Path = TARGETS_FILE) -> TargetTab
         return TargetTable(ids, tris, bary, {"A": st.targets_a, "B": st.targets_b, "F": st.targets_a}, {})
     path = Path(path)
     if not path.exists():
-        raise ConfigError(f"{path} is missing; make it with `python -m mjendo.targets map`")
+        load_error(path)
     meta = json.loads(path.read_text())
     pts = meta["points"]
     return TargetTable(np.array([p["id"] for p in pts], dtype=np.int64), np.array([p["tri"] for p in pts]),
@@ -147,14 +153,15 @@ def _pulls(direction: float, magnitude: float) -> np.ndarray:
     return magnitude * _ring(direction)
 
 
-def free_tips(version: int, progress: bool = True) -> np.ndarray:
+def free_tips(version: int, progress: bool = True, anatomy_id=None) -> np.ndarray:
     """Tip positions (m) of the free-space sweep: insertion every 5 mm x 24 bending directions x a slow
     (quasi-static) ramp of the bending from straight to full, with the stomach removed (FE)."""
     from tqdm import tqdm
 
     from mjendo.sim import Simulator
 
-    sim = Simulator("FE", "fast", version=version)
+    sim = Simulator("FE", "fast", version=version,
+                    stomach=None if anatomy_id is None else anatomy.stomach_dir(anatomy_id))
     hi = sim.insertion_range[1]
     pull_max = float(sim.cable_pull_max[0])
     dt = sim.model.opt.timestep
@@ -172,10 +179,10 @@ def free_tips(version: int, progress: bool = True) -> np.ndarray:
     return np.array(tips)
 
 
-def free_sweep(version: int, points: np.ndarray, progress: bool = True) -> np.ndarray:
+def free_sweep(version: int, points: np.ndarray, progress: bool = True, anatomy_id=None) -> np.ndarray:
     """Closest approach (m) of the tip to each point in free space, over the sweep of :func:`free_tips`."""
     best = np.full(len(points), np.inf)
-    for tip in free_tips(version, progress):
+    for tip in free_tips(version, progress, anatomy_id):
         _closest(best, tip, points)
     return best
 
@@ -212,7 +219,7 @@ def _reach_job(args) -> tuple[int, np.ndarray]:
     counts) and "naive" (the DLS controller aimed at one point, no noise; only that point's closest
     approach counts: what aiming alone achieves). ``phase``: the load phase every episode starts at.
     """
-    chunk, version, env, tris, bary, kind, items, seed, steps, phase = args
+    chunk, version, env, tris, bary, kind, items, seed, steps, phase, anatomy_id = args
     import torch
 
     from mjendo.baseline import DLSController
@@ -222,7 +229,7 @@ def _reach_job(args) -> tuple[int, np.ndarray]:
     ids = np.arange(len(tris))
     table = TargetTable(ids, tris, bary, {"A": ids.tolist()}, {})  # the candidates, before any list exists
     task = NavigationTask(env=env, version=version, max_steps=10**6, randomize_phase=False, table=table,
-                          target_list="A")
+                          target_list="A", anatomy=anatomy_id)
     sim = task.sim
     rows = np.full((len(items), len(tris)), np.inf)
     rng = np.random.default_rng(seed)
@@ -282,7 +289,7 @@ def representatives(tris: np.ndarray, bary: np.ndarray) -> np.ndarray:
 
 
 def free_reach(version: int, tris: np.ndarray, bary: np.ndarray, episodes: int, seed: int, progress: bool = True,
-               workers: int = 2, start: np.ndarray | None = None) -> np.ndarray:
+               workers: int = 2, start: np.ndarray | None = None, anatomy_id=None) -> np.ndarray:
     """Closest approach (m) of the tip to each point in free space (FE), over every moving strategy.
 
     Scripted insertions, the demonstrators and seeded random exploration first; then two aimed passes at
@@ -292,33 +299,34 @@ def free_reach(version: int, tris: np.ndarray, bary: np.ndarray, episodes: int, 
     best = np.full(len(tris), np.inf) if start is None else start.copy()
     for phase, (kind, items) in enumerate([("script", SCRIPTS), ("demo", DEMOS), ("random", list(range(episodes)))]):
         np.minimum(best, _pool("FE", version, tris, bary, kind, items, seed * 1000 + phase * 100, progress,
-                               workers, N_STEPS).min(0), out=best)
+                               workers, N_STEPS, anatomy_id=anatomy_id).min(0), out=best)
     reps = representatives(tris, bary)
     for phase, noise in enumerate(AIM_NOISE, start=3):
         open_tris = {tuple(t) for t in tris[best >= from_mm(PAPER_SUCCESS_MM)]}
         aims = [(int(i), noise) for i in reps if tuple(tris[i]) in open_tris]
         np.minimum(best, _pool("FE", version, tris, bary, "aimed", aims, seed * 1000 + phase * 100, progress,
-                               workers, N_STEPS).min(0), out=best)
+                               workers, N_STEPS, anatomy_id=anatomy_id).min(0), out=best)
     return best
 
 
 def wall_reach(version: int, tris: np.ndarray, bary: np.ndarray, seed: int, progress: bool = True,
-               workers: int = 2) -> tuple[np.ndarray, np.ndarray]:
+               workers: int = 2, anatomy_id=None) -> np.ndarray:
     """Closest approach (m) of every demonstrator to every point within a trial, in SE then in each DE phase:
     shape (1 + PHASES, len(DEMOS), points)."""
     runs = [("SE", None)] + [("DE", p) for p in range(PHASES)]
     return np.array([_pool(env, version, tris, bary, "demo", DEMOS, seed * 1000 + 500 + k, progress, workers,
-                           TRIAL_STEPS, phase=p) for k, (env, p) in enumerate(runs)])
+                           TRIAL_STEPS, phase=p, anatomy_id=anatomy_id) for k, (env, p) in enumerate(runs)])
 
 
 def naive_reach(version: int, tris: np.ndarray, bary: np.ndarray, points, seed: int, progress: bool = True,
-                workers: int = 2) -> np.ndarray:
+                workers: int = 2, anatomy_id=None) -> np.ndarray:
     """Closest approach (m) of the contact-blind DLS controller aimed at each of ``points`` in an SE trial."""
     return _pool("SE", version, tris, bary, "naive", [(int(t), 0.0) for t in points], seed * 1000 + 900, progress,
-                 workers, TRIAL_STEPS).min(0)
+                 workers, TRIAL_STEPS, anatomy_id=anatomy_id).min(0)
 
 
-def _pool(env, version, tris, bary, kind, items, seed, progress, workers, steps, phase=None) -> np.ndarray:
+def _pool(env, version, tris, bary, kind, items, seed, progress, workers, steps, phase=None,
+          anatomy_id=None) -> np.ndarray:
     """Closest approach (m) of each episode (one per item, in order) to each point: (len(items), points)."""
     from multiprocessing import get_context
 
@@ -328,7 +336,8 @@ def _pool(env, version, tris, bary, kind, items, seed, progress, workers, steps,
     rows = np.full((len(items), len(tris)), np.inf)
     if not items:
         return rows
-    jobs = [(i, version, env, tris, bary, kind, items[i::chunks], seed + i, steps, phase) for i in range(chunks)]
+    jobs = [(i, version, env, tris, bary, kind, items[i::chunks], seed + i, steps, phase, anatomy_id)
+            for i in range(chunks)]
     label = f"{env} {kind} ({len(items)})" + ("" if phase is None else f" phase {phase + 1}/{PHASES}")
     with get_context("spawn").Pool(workers) as pool:
         for i, part in tqdm(pool.imap_unordered(_reach_job, jobs), total=len(jobs), desc=label,
@@ -388,33 +397,45 @@ def redraw(meta: dict, seed: int) -> dict:
     return {**meta, "lists": lists}
 
 
-def make_map(episodes: int, seed: int, progress: bool = True) -> dict:
-    """Measure every candidate and draw the lists; the content of targets.json."""
+def make_map(episodes: int, seed: int, progress: bool = True, anatomy_id=None) -> dict:
+    """Measure every candidate and draw the lists; the content of targets.json.
+
+    ``anatomy_id``: another stomach (TaskConfig.anatomy); its map keeps only the listed points' records,
+    with list F cut to MAX_FREE_OTHER, so a benchmark of many stomachs stays small.
+    """
     from mjendo.task import free_targets
 
-    st = anatomy.load()
+    folder = anatomy.stomach_dir(anatomy_id)
+    st = anatomy.load(folder)
     tris, bary = candidates(st)
     t0 = time.time()
-    rest = np.einsum("nk,nkd->nd", bary, free_targets("fast", CURRENT_VERSION)[tris])  # where FE's points float
-    static_mm = to_mm(free_sweep(CURRENT_VERSION, rest, progress))
+    where = free_targets("fast", CURRENT_VERSION, None if anatomy_id is None else folder)
+    rest = np.einsum("nk,nkd->nd", bary, where[tris])  # where FE's points float
+    static_mm = to_mm(free_sweep(CURRENT_VERSION, rest, progress, anatomy_id))
     # Free space reaches further moving than settling (the tube sags over about a second): the free-space
     # distance is the closer of the quasi-static sweep and the same strategies as with the wall, in FE.
-    free_mm = to_mm(free_reach(CURRENT_VERSION, tris, bary, episodes, seed, progress, start=from_mm(static_mm)))
-    demos = wall_reach(CURRENT_VERSION, tris, bary, seed, progress)  # (SE + DE phases, demonstrators, points)
+    free_mm = to_mm(free_reach(CURRENT_VERSION, tris, bary, episodes, seed, progress, start=from_mm(static_mm),
+                               anatomy_id=anatomy_id))
+    # (SE + DE phases, demonstrators, points)
+    demos = wall_reach(CURRENT_VERSION, tris, bary, seed, progress, anatomy_id=anatomy_id)
     per_run = to_mm(demos.min(1))
     wall_mm, phase_mm = per_run[0], per_run[1:].max(0)
     which = demos.argmin(1)  # the demonstrator that comes closest, per run and point
     cls = classify(free_mm, wall_mm, phase_mm)
     aided = np.flatnonzero(cls == "contact_aided")
     naive_mm = np.full(len(tris), np.nan)
-    naive_mm[aided] = to_mm(naive_reach(CURRENT_VERSION, tris, bary, aided, seed, progress)[aided])
+    naive_mm[aided] = to_mm(naive_reach(CURRENT_VERSION, tris, bary, aided, seed, progress,
+                                        anatomy_id=anatomy_id)[aided])
     lists = draw_lists(rest, cls, st, seed)
+    if anatomy_id is not None:
+        lists["F"] = sorted(lists["F"][:MAX_FREE_OTHER])
     counts = {c: int(np.sum(cls == c)) for c in ("free", "between", "contact_aided", "out_of_reach")}
     info = {
         "rule": (f"free: free-space distance < {FREE_MM} mm; contact_aided: >= {CONTACT_AIDED_MM} mm and reached "
                  f"with the wall within {PAPER_SUCCESS_MM} mm within {TRIAL_STEPS} steps by a demonstrator, in SE "
                  f"and from each of {PHASES} DE load phases; listed points at least {SPACING_MM} mm apart"),
-        "command": f"python -m mjendo.targets map --episodes {episodes} --seed {seed}",
+        "command": f"python -m mjendo.targets map --episodes {episodes} --seed {seed}"
+                   + ("" if anatomy_id is None else f" --anatomy {anatomy_id}"),
         "classes": counts,
         "seconds": round(time.time() - t0, 1),
         **list_info(cls, lists),
@@ -427,6 +448,9 @@ def make_map(episodes: int, seed: int, progress: bool = True) -> dict:
                # index into DEMOS of the demonstrator that reaches a contact-aided point, in SE then per DE phase
                "demos": [int(k) for k in which[:, i]] if cls[i] == "contact_aided" else None}
               for i in range(len(tris))]
+    if anatomy_id is not None:
+        listed = {i for v in lists.values() for i in v}
+        points = [p for p in points if p["id"] in listed]
     return {"version": CURRENT_VERSION, "info": info, "lists": lists, "points": points}
 
 
@@ -447,7 +471,13 @@ def figure(out: Path, path: Path = TARGETS_FILE) -> Path:
 
 
 def load_error(path: Path):
-    raise ConfigError(f"{path} is missing; measure the map first with `python -m mjendo.targets map`")
+    raise ConfigError(f"{path} is missing; measure the map first with `python -m mjendo.targets map` "
+                      "(another stomach's: `--anatomy SEED_OR_FOLDER`)")
+
+
+def anatomy_arg(text: str) -> int | str:
+    """--anatomy: a generated stomach's seed, or a folder."""
+    return int(text) if text.isdigit() else text
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -457,7 +487,8 @@ def main(argv: list[str] | None = None) -> int:
     m = sub.add_parser("map", help="measure every candidate point and write the target lists (targets.json)")
     m.add_argument("--episodes", type=int, default=400, help="random exploration episodes in free space")
     m.add_argument("--seed", type=int, default=0)
-    m.add_argument("--out", type=Path, default=TARGETS_FILE)
+    m.add_argument("--anatomy", type=anatomy_arg, help="another stomach: a generated one's seed or a built folder")
+    m.add_argument("--out", type=Path, help="default: targets.json in the stomach's folder")
     f = sub.add_parser("figure", help="free-space workspaces (versions 0 and 1) and the classified points")
     f.add_argument("--out", type=Path, default=paths.DATA / "docs" / "media" / "targets.png")
     d = sub.add_parser("lists", help="draw lists F, A and B again from the map's measured classes (no simulation)")
@@ -470,7 +501,8 @@ def main(argv: list[str] | None = None) -> int:
             print(f"wrote {figure(args.out)}")
             return
         if args.cmd == "map":
-            meta = make_map(args.episodes, args.seed)
+            meta = make_map(args.episodes, args.seed, anatomy_id=args.anatomy)
+            args.out = args.out or map_path(anatomy.stomach_dir(args.anatomy))
         else:
             meta = redraw(json.loads(args.out.read_text()) if args.out.exists() else load_error(args.out), args.seed)
         args.out.write_text(json.dumps(meta, indent=None, separators=(",", ":")).replace('{"id"', '\n{"id"') + "\n")

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from functools import lru_cache
+from pathlib import Path
 
 import mujoco
 import numpy as np
@@ -71,10 +72,10 @@ def obs_bounds(cfg: TaskConfig) -> tuple[np.ndarray, np.ndarray]:
     return np.array(lo, np.float32), np.array(hi, np.float32)
 
 
-@lru_cache(maxsize=4)
-def free_targets(fidelity: str, version: int = CURRENT_VERSION) -> np.ndarray:
-    """Where the wall would be (FE): every vertex of the settled static stomach."""
-    sim = Simulator("SE", fidelity, version=version)
+@lru_cache(maxsize=8)
+def free_targets(fidelity: str, version: int = CURRENT_VERSION, stomach: Path | None = None) -> np.ndarray:
+    """Where the wall would be (FE): every vertex of the settled static stomach (``stomach``: its folder)."""
+    sim = Simulator("SE", fidelity, version=version, stomach=stomach)
     sim.set_controls(np.zeros(4), sim.insertion_range[0])  # scope out of the way
     sim.step(int(round(SETTLE_S / sim.model.opt.timestep)))
     return sim.vertices()
@@ -95,9 +96,11 @@ class NavigationTask:
     def __init__(self, cfg: TaskConfig | None = None, table: targets.TargetTable | None = None, **kw):
         self.cfg = cfg if cfg is not None else task_config(**kw)
         c = self.cfg
-        self.sim = Simulator(c.env, c.fidelity, version=c.version)
-        self.stomach = anatomy.load()
-        table = table or targets.load(c.version)
+        self.stomach_dir = anatomy.stomach_dir(c.anatomy)
+        stomach = None if c.anatomy is None else self.stomach_dir
+        self.sim = Simulator(c.env, c.fidelity, version=c.version, stomach=stomach)
+        self.stomach = anatomy.load(self.stomach_dir)
+        table = table or targets.load(c.version, targets.map_path(self.stomach_dir))
         listname = c.target_list or default_target_list(c.env, c.version)
         self.target_list = listname
         self.targets = np.array(table.listed(listname), dtype=np.int64)
@@ -116,7 +119,7 @@ class NavigationTask:
         # cardia, so "x_EE < 15 mm" means the tip is back behind the cardia.
         self.axis = self.stomach.axis
         self.origin = self.stomach.entry - from_mm(PAPER_EXIT_X_MM) * self.axis
-        self._fe_targets = None if self.sim.has_stomach else free_targets(c.fidelity, c.version)
+        self._fe_targets = None if self.sim.has_stomach else free_targets(c.fidelity, c.version, stomach)
         self._starts = self._settle()
         self._settled = self._starts[0]
         self.target = int(self.targets[0])

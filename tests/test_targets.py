@@ -126,6 +126,7 @@ def test_contact_aided_targets_are_out_of_free_space_reach_by_an_independent_sea
 def test_a_missing_target_table_says_how_to_make_it(tmp_path):
     from mjendo.config import ConfigError
 
-    with pytest.raises(ConfigError, match=r"targets.json is missing; make it with `?python -m mjendo.targets map"):
+    with pytest.raises(ConfigError, match=r"targets.json is missing; measure the map first with "
+                                          r"`python -m mjendo.targets map`"):
         targets.load(CURRENT_VERSION, tmp_path / "targets.json")
     assert targets.load(0, tmp_path / "targets.json").lists["A"]  # version 0's vertex targets need no table

@@ -1,0 +1,93 @@
+"""Other stomachs: generated anatomies get their own scenes and run the same task."""
+
+import numpy as np
+import pytest
+
+from mjendo import anatomy, paths, targets
+from mjendo.config import ConfigError, task_config
+from mjendo.sim import Simulator
+from mjendo.task import NavigationTask
+
+
+@pytest.fixture
+def cache(tmp_path, monkeypatch):
+    """A cache of its own, so the test builds what a fresh machine builds."""
+    monkeypatch.setattr(paths, "CACHE", tmp_path)
+    monkeypatch.setattr(paths, "ANATOMIES_DIR", tmp_path / "none")  # ignore committed benchmark stomachs
+    return tmp_path
+
+
+def small_table(st: anatomy.Stomach, n: int = 6) -> targets.TargetTable:
+    """A few candidate points deep in the stomach: a map's table without measuring the map."""
+    tris, bary = targets.candidates(st)
+    depth = np.einsum("nk,nkd->nd", bary, st.mesh.points[tris]) @ st.axis
+    rows = np.argsort(-depth)[:n]
+    ids = np.arange(n)
+    return targets.TargetTable(ids, tris[rows], bary[rows], {"A": ids.tolist()}, {})
+
+
+def test_a_generated_stomach_gets_its_own_scene_with_the_scope_at_its_cardia(cache):
+    folder = anatomy.stomach_dir(5)
+    assert folder.is_relative_to(cache) and (folder / "stomach.msh").exists()
+    st = anatomy.load(folder)
+    sim = Simulator("SE", "fast", stomach=folder)
+    assert sim.path.is_relative_to(cache)
+    builtin = Simulator("SE", "fast")
+    assert sim.model.flex_vertnum[sim.flex] == len(st.mesh.points) != builtin.model.flex_vertnum[builtin.flex]
+    # The tip starts start_depth past this stomach's cardia, along its insertion axis.
+    along = (sim.tip_pos() - st.entry) @ st.axis
+    assert 0.0 < along < 0.05 and np.linalg.norm(sim.tip_pos() - st.entry - along * st.axis) < 0.01
+    # The same folder gives the same scene file again (built once).
+    assert Simulator("DE", "fast", stomach=folder).path == sim.path
+
+
+def test_the_load_moves_a_generated_stomachs_fundus_and_the_task_runs_there(cache):
+    folder = anatomy.stomach_dir(5)
+    st = anatomy.load(folder)
+    task = NavigationTask(task_config(env="DE", anatomy=5, max_steps=30), table=small_table(st))
+    rng = np.random.default_rng(0)
+    task.reset(rng)
+    start = task.distance_mm()
+    fundus = []
+    for _ in range(30):
+        res = task.step(np.array([0.0, 0.0, 0.0, 0.0, 0.4]))
+        fundus.append(task.sim.vertices(st.forced).mean(0))
+    assert "instability" not in res.info
+    assert task.distance_mm() < start  # inserting brings the tip towards the deep targets
+    # 3 s of the square wave (half period 2 s) switch it at least once: the loaded fundus moves millimetres.
+    assert np.ptp(np.array(fundus)[:, 2]) > 1e-3
+
+
+@pytest.mark.parametrize("bad, word", [(-1, "seed must be >= 0"), (True, "anatomy must be"),
+                                       ("/no/such/folder", "holds no stomach.json")])
+def test_bad_anatomy_names_the_fix(bad, word):
+    with pytest.raises(ConfigError, match=word):
+        task_config(anatomy=bad)
+
+
+def test_a_stomach_without_a_map_says_how_to_measure_it(cache):
+    with pytest.raises(ConfigError, match="targets map.*--anatomy"):
+        NavigationTask(task_config(env="DE", anatomy=6))
+
+
+def test_a_users_surface_becomes_an_environment(tmp_path, cache, capsys):
+    import trimesh
+
+    # A shape the project did not generate: an ellipsoid lumen in millimetres, as exported from a segmentation.
+    s = trimesh.creation.icosphere(subdivisions=3, radius=1.0)
+    s.apply_scale([95.0, 55.0, 50.0])
+    surface, folder = tmp_path / "lumen.stl", tmp_path / "my_stomach"
+    s.export(surface)
+    argv = ["build", "--surface", str(surface), "--entry", "95", "0", "0", "--axis", "-1", "0", "0"]
+    with pytest.raises(SystemExit) as exc:  # no --out: the built-in stomach is never overwritten
+        anatomy.main(argv)
+    assert exc.value.code == 2 and "--surface needs --out FOLDER" in capsys.readouterr().err
+    assert anatomy.main([*argv, "--out", str(folder)]) == 0
+    assert f"--anatomy {folder}" in capsys.readouterr().out
+    st = anatomy.load(folder)
+    task = NavigationTask(task_config(env="DE", anatomy=str(folder), max_steps=40), table=small_table(st))
+    task.reset(np.random.default_rng(1))
+    start = task.distance_mm()
+    for _ in range(40):
+        res = task.step(np.array([0.0, 0.0, 0.0, 0.0, 0.4]))
+    assert "instability" not in res.info and task.distance_mm() < start - 20.0

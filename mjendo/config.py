@@ -85,6 +85,11 @@ class AnatomyRanges:
     cardia_arclength_mm: tuple[float, float] = (8.0, 18.0)  # how far below the fundus dome the cardia opens
 
 
+# The anatomy benchmark: generated stomachs (anatomy.generate) to train on and disjoint ones to test on,
+# drawn per episode by `anatomy="train"` / `anatomy="test"`. The seeds are published so results compare.
+ANATOMY_SETS: dict[str, tuple[int, ...]] = {"train": tuple(range(0, 20)), "test": tuple(range(100, 110))}
+
+
 @dataclass(frozen=True)
 class Material:
     """Linear elastic stomach wall (MuJoCo flex ``<elasticity>``)."""
@@ -517,7 +522,8 @@ class TaskConfig:
     # task_config also takes True (the default ranges) or a dict of Randomization fields.
     randomization: Randomization | None = None
     # Which stomach: None the built-in one; a whole number a generated one (anatomy.generate, its seed);
-    # a path a folder built by `python -m mjendo.anatomy build` (yours) with its target map.
+    # "train" or "test" one of ANATOMY_SETS, drawn per episode by the environment; a path a folder built by
+    # `python -m mjendo.anatomy build` (yours) with its target map.
     anatomy: int | str | None = None
 
 
@@ -579,11 +585,11 @@ def _anatomy(cfg: TaskConfig) -> None:
     """A ConfigError unless ``cfg.anatomy`` names a stomach a task can run in."""
     a = cfg.anatomy
     if isinstance(a, bool) or not isinstance(a, int | np.integer | str):
-        raise ConfigError(f"anatomy must be None (the built-in stomach), a seed (a whole number >= 0) or the "
-                          f"folder of a stomach you built, not {a!r}")
+        raise ConfigError(f"anatomy must be None (the built-in stomach), a seed (a whole number >= 0), a set "
+                          f"({', '.join(ANATOMY_SETS)}) or the folder of a stomach you built, not {a!r}")
     if isinstance(a, int | np.integer) and a < 0:
         raise ConfigError(f"anatomy seed must be >= 0, not {a}")
-    if isinstance(a, str) and not (Path(a) / "stomach.json").exists():
+    if isinstance(a, str) and a not in ANATOMY_SETS and not (Path(a) / "stomach.json").exists():
         raise ConfigError(f"anatomy {a!r} holds no stomach.json; build one with `python -m mjendo.anatomy build "
                           f"--surface YOUR.stl --entry X Y Z --axis DX DY DZ --out {a}`")
     if cfg.version < 1:

@@ -4,11 +4,13 @@ from __future__ import annotations
 
 import atexit
 import weakref
+from dataclasses import replace
 
 import gymnasium as gym
 import mujoco
 import numpy as np
 
+from mjendo import anatomy
 from mjendo.config import ACTION_SIZE, PAPER_ACTION_LIMIT, ConfigError, TaskConfig, task_config
 from mjendo.endoscope import TIP_CAMERA
 from mjendo.task import NavigationTask
@@ -81,6 +83,7 @@ class EndoscopeEnv(gym.Env):
     | ``max_steps`` | 128 | truncation limit |
     | ``force_penalty`` | 0.0 | weight of the optional force penalty per newton |
     | ``randomize_phase`` | True | start each episode at a random phase of the periodic load (False: phase 0) |
+    | ``anatomy`` | None | the stomach: None built-in; a seed (generated, ``anatomy.generate``); "train" or "test" (``config.ANATOMY_SETS``, one drawn per episode; ``reset(options={"anatomy_index": k})`` picks one); a folder you built |
     | ``randomization`` | None | per-episode tissue stiffness and damping, load amplitude, period and direction, friction and sensor noise: True for the ranges of ``config.Randomization`` (sourced there), or a dict of its fields |
     | ``render_mode`` | None | "rgb_array" |
     | ``camera`` | "external" | "external", "tip_camera" or "both" (side by side) |
@@ -89,7 +92,7 @@ class EndoscopeEnv(gym.Env):
 
     ``info`` each step: distance_mm, is_success, contact, force_N (3-vector),
     peak_force_N, target_index, exited, step and the reward terms.
-    ``reset``'s info: target_index, distance_mm and, with ``randomization``, the episode's drawn parameters.
+    ``reset``'s info: target_index, distance_mm, anatomy and, with ``randomization``, the episode's draw.
 
     ## Version history
 
@@ -123,7 +126,11 @@ class EndoscopeEnv(gym.Env):
                                   f"not {v!r}")
         cfg = task_config(env=env, fidelity=fidelity, force_obs=force_obs, target_list=target_list,
                           max_steps=max_steps, force_penalty=force_penalty, randomize_phase=randomize_phase, **task)
-        self.task = NavigationTask(cfg)
+        # One task per stomach the episodes are drawn from (a set of anatomies: several), each built on first use.
+        self._members = anatomy.members(cfg.anatomy)
+        self._cfg = cfg
+        self._tasks: dict[int, NavigationTask] = {}
+        self.task = self._task(0)
         self.render_mode = render_mode
         self.camera = camera
         self.width, self.height = int(width), int(height)
@@ -132,16 +139,36 @@ class EndoscopeEnv(gym.Env):
         self.action_space = gym.spaces.Box(-PAPER_ACTION_LIMIT, PAPER_ACTION_LIMIT, (ACTION_SIZE,), np.float32)
         self.observation_space = gym.spaces.Box(self.task.obs_low, self.task.obs_high, dtype=np.float32)
 
+    def _task(self, k: int) -> NavigationTask:
+        if k not in self._tasks:
+            self._tasks[k] = NavigationTask(replace(self._cfg, anatomy=self._members[k]))
+        return self._tasks[k]
+
+    @property
+    def anatomies(self) -> list:
+        """The stomachs episodes are drawn from (None: the built-in one)."""
+        return list(self._members)
+
     def set_target_weights(self, weights) -> None:
         """Training's hook (``VecEnv.env_method``) for how often each target is drawn: see mjendo.sampling."""
+        if len(self._members) > 1 and weights is not None:
+            raise ConfigError("target weights are per stomach's list: adaptive sampling needs one anatomy")
         self.task.set_target_weights(weights)
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
+        if len(self._members) > 1:
+            k = int(options["anatomy_index"]) if options and "anatomy_index" in options \
+                else int(self.np_random.integers(len(self._members)))
+            task = self._task(k)
+            if task is not self.task and self._renderer is not None:
+                self.close()  # the renderer belongs to the previous stomach's model
+            self.task = task
         obs = self.task.reset(self.np_random)
         if options and "target_index" in options:
             obs = self.task.set_target(int(options["target_index"]))
-        info = {"target_index": self.task.target, "distance_mm": self.task.distance_mm()}
+        info = {"target_index": self.task.target, "distance_mm": self.task.distance_mm(),
+                "anatomy": self.task.cfg.anatomy}
         if self.task.episode_params is not None:
             info["randomization"] = self.task.episode_params
         return obs, info

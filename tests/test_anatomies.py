@@ -91,3 +91,38 @@ def test_a_users_surface_becomes_an_environment(tmp_path, cache, capsys):
     for _ in range(40):
         res = task.step(np.array([0.0, 0.0, 0.0, 0.0, 0.4]))
     assert "instability" not in res.info and task.distance_mm() < start - 20.0
+
+
+def write_small_map(st: anatomy.Stomach, folder) -> None:
+    """A target map in targets.json's format holding a few deep candidates (lists A, B, F)."""
+    import json
+
+    table = small_table(st)
+    points = [{"id": int(i), "tri": table.tris[r].tolist(), "bary": table.bary[r].tolist(), "class": "free"}
+              for r, i in enumerate(table.ids)]
+    ids = table.ids.tolist()
+    (folder / "targets.json").write_text(json.dumps({"version": 1, "info": {}, "points": points,
+                                                     "lists": {"A": ids[:3], "B": ids[3:], "F": ids}}))
+
+
+def test_a_set_of_stomachs_is_drawn_per_episode(cache, monkeypatch):
+    from mjendo import config
+    from mjendo.envs import EndoscopeEnv
+
+    monkeypatch.setitem(config.ANATOMY_SETS, "test", (5, 6))
+    for seed in (5, 6):
+        write_small_map(anatomy.load(anatomy.stomach_dir(seed)), anatomy.stomach_dir(seed))
+    env = EndoscopeEnv("DE", anatomy="test", max_steps=3)
+    assert env.anatomies == [5, 6]
+    seen, shapes = set(), set()
+    for seed in range(8):
+        obs, info = env.reset(seed=seed)
+        assert env.observation_space.contains(obs)
+        seen.add(info["anatomy"])
+        shapes.add(int(env.task.sim.model.flex_vertnum[env.task.sim.flex]))
+        env.step(env.action_space.sample())
+    assert seen == {5, 6} and len(shapes) == 2  # both stomachs, each its own model
+    _, info = env.reset(seed=0, options={"anatomy_index": 1})
+    assert info["anatomy"] == 6
+    with pytest.raises(ConfigError, match="a set of stomachs"):
+        NavigationTask(task_config(env="DE", anatomy="test"))

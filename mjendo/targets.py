@@ -35,7 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from mjendo import anatomy, cli, paths
-from mjendo.config import CURRENT_VERSION, PAPER_EVAL_STEPS, PAPER_SUCCESS_MM, ConfigError
+from mjendo.config import ANATOMY_SETS, CURRENT_VERSION, PAPER_EVAL_STEPS, PAPER_SUCCESS_MM, ConfigError
 from mjendo.units import from_mm, to_mm
 
 TARGETS_FILE = paths.STOMACH_DIR / "targets.json"
@@ -470,6 +470,28 @@ def figure(out: Path, path: Path = TARGETS_FILE) -> Path:
     return figures.target_map(rest[st.mesh.inner], points, classes, lists, spaces, Path(out))
 
 
+def write_map(meta: dict, out: Path) -> None:
+    out.write_text(json.dumps(meta, indent=None, separators=(",", ":")).replace('{"id"', '\n{"id"') + "\n")
+
+
+def benchmark_maps(name: str, episodes: int, seed: int) -> None:
+    """The maps of a benchmark set's stomachs, each committed with its stomach under models/anatomies/seed-N/.
+
+    Resumable: a stomach whose map exists is skipped, so a stopped run goes on where it stopped.
+    """
+    for k in ANATOMY_SETS[name]:
+        folder = paths.ANATOMIES_DIR / f"seed-{k}"
+        if map_path(folder).exists():
+            print(f"{folder}: map exists, skipped", flush=True)
+            continue
+        if not (folder / "stomach.json").exists():
+            anatomy.save(anatomy.generate(k), folder)
+        meta = make_map(episodes, seed, progress=False, anatomy_id=k)
+        write_map(meta, map_path(folder))
+        print(f"{folder}: {meta['info']['classes']}, lists " + ", ".join(f"{n} {len(v)}" for n, v in
+                                                                        meta["lists"].items()), flush=True)
+
+
 def load_error(path: Path):
     raise ConfigError(f"{path} is missing; measure the map first with `python -m mjendo.targets map` "
                       "(another stomach's: `--anatomy SEED_OR_FOLDER`)")
@@ -487,7 +509,8 @@ def main(argv: list[str] | None = None) -> int:
     m = sub.add_parser("map", help="measure every candidate point and write the target lists (targets.json)")
     m.add_argument("--episodes", type=int, default=400, help="random exploration episodes in free space")
     m.add_argument("--seed", type=int, default=0)
-    m.add_argument("--anatomy", type=anatomy_arg, help="another stomach: a generated one's seed or a built folder")
+    m.add_argument("--anatomy", type=anatomy_arg, help="another stomach: a generated one's seed, a built folder, or "
+                   f"a benchmark set ({', '.join(ANATOMY_SETS)}: every stomach of it, into models/anatomies/)")
     m.add_argument("--out", type=Path, help="default: targets.json in the stomach's folder")
     f = sub.add_parser("figure", help="free-space workspaces (versions 0 and 1) and the classified points")
     f.add_argument("--out", type=Path, default=paths.DATA / "docs" / "media" / "targets.png")
@@ -500,12 +523,15 @@ def main(argv: list[str] | None = None) -> int:
         if args.cmd == "figure":
             print(f"wrote {figure(args.out)}")
             return
+        if args.cmd == "map" and isinstance(args.anatomy, str) and args.anatomy in ANATOMY_SETS:
+            benchmark_maps(args.anatomy, args.episodes, args.seed)
+            return
         if args.cmd == "map":
             meta = make_map(args.episodes, args.seed, anatomy_id=args.anatomy)
             args.out = args.out or map_path(anatomy.stomach_dir(args.anatomy))
         else:
             meta = redraw(json.loads(args.out.read_text()) if args.out.exists() else load_error(args.out), args.seed)
-        args.out.write_text(json.dumps(meta, indent=None, separators=(",", ":")).replace('{"id"', '\n{"id"') + "\n")
+        write_map(meta, args.out)
         print(json.dumps(meta["info"], indent=1))
         print(f"wrote {args.out}: lists " + ", ".join(f"{k} {len(v)}" for k, v in meta["lists"].items()))
 

@@ -273,14 +273,15 @@ def read_yaml(path: Path) -> dict:
 
 
 def _variant(raw: dict, path: Path, policy: str, variant: str) -> dict:
-    """A variants entry of the config (its ``policy`` must be the one trained), without that key."""
+    """A variants entry of the config (its ``policy``, one or a list, must hold the one trained), without that key."""
     variants = raw.get("variants") or {}
     block = variants.get(variant)
     if not isinstance(block, dict):
         raise ConfigError(f"training config {path} has no variant {variant!r}; valid: {', '.join(variants) or 'none'}")
-    if block.get("policy") != policy:
-        raise ConfigError(f"variant {variant} is a variant of policy {block.get('policy')}, not {policy}: "
-                          f"use --policy {block.get('policy')}")
+    allowed = block.get("policy") if isinstance(block.get("policy"), list) else [block.get("policy")]
+    if policy not in allowed:
+        raise ConfigError(f"variant {variant} is a variant of policy {' or '.join(map(str, allowed))}, not {policy}: "
+                          f"use --policy {allowed[0]}")
     return {k: v for k, v in block.items() if k != "policy"}
 
 

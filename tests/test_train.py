@@ -238,6 +238,11 @@ def test_a_variant_merges_over_its_policy_and_names_its_run(tmp_path):
         load_config("D", TRAINING_CONFIG, "scope-curriculum")
     with pytest.raises(ConfigError, match="no variant 'nope'; valid: scope-curriculum"):
         load_config("E", TRAINING_CONFIG, "nope")
+    # A variant of several policies applies to each with its own entry: D stays blind to force.
+    d, e = load_config("D", TRAINING_CONFIG, "free-pool"), load_config("E", TRAINING_CONFIG, "free-pool")
+    assert d.train_targets == e.train_targets == "A+F" and not d.force_obs and e.force_obs
+    with pytest.raises(ConfigError, match="variant free-pool is a variant of policy D or E, not A"):
+        load_config("A", TRAINING_CONFIG, "free-pool")
 
 
 def test_per_policy_ppo_and_task_blocks_merge_into_the_defaults(tmp_path):

@@ -397,7 +397,7 @@ def redraw(meta: dict, seed: int) -> dict:
     return {**meta, "lists": lists}
 
 
-def make_map(episodes: int, seed: int, progress: bool = True, anatomy_id=None) -> dict:
+def make_map(episodes: int, seed: int, progress: bool = True, anatomy_id=None, workers: int = 2) -> dict:
     """Measure every candidate and draw the lists; the content of targets.json.
 
     ``anatomy_id``: another stomach (TaskConfig.anatomy); its map keeps only the listed points' records,
@@ -414,17 +414,17 @@ def make_map(episodes: int, seed: int, progress: bool = True, anatomy_id=None) -
     static_mm = to_mm(free_sweep(CURRENT_VERSION, rest, progress, anatomy_id))
     # Free space reaches further moving than settling (the tube sags over about a second): the free-space
     # distance is the closer of the quasi-static sweep and the same strategies as with the wall, in FE.
-    free_mm = to_mm(free_reach(CURRENT_VERSION, tris, bary, episodes, seed, progress, start=from_mm(static_mm),
-                               anatomy_id=anatomy_id))
+    free_mm = to_mm(free_reach(CURRENT_VERSION, tris, bary, episodes, seed, progress, workers,
+                               start=from_mm(static_mm), anatomy_id=anatomy_id))
     # (SE + DE phases, demonstrators, points)
-    demos = wall_reach(CURRENT_VERSION, tris, bary, seed, progress, anatomy_id=anatomy_id)
+    demos = wall_reach(CURRENT_VERSION, tris, bary, seed, progress, workers, anatomy_id=anatomy_id)
     per_run = to_mm(demos.min(1))
     wall_mm, phase_mm = per_run[0], per_run[1:].max(0)
     which = demos.argmin(1)  # the demonstrator that comes closest, per run and point
     cls = classify(free_mm, wall_mm, phase_mm)
     aided = np.flatnonzero(cls == "contact_aided")
     naive_mm = np.full(len(tris), np.nan)
-    naive_mm[aided] = to_mm(naive_reach(CURRENT_VERSION, tris, bary, aided, seed, progress,
+    naive_mm[aided] = to_mm(naive_reach(CURRENT_VERSION, tris, bary, aided, seed, progress, workers,
                                         anatomy_id=anatomy_id)[aided])
     lists = draw_lists(rest, cls, st, seed)
     if anatomy_id is not None:
@@ -474,7 +474,7 @@ def write_map(meta: dict, out: Path) -> None:
     out.write_text(json.dumps(meta, indent=None, separators=(",", ":")).replace('{"id"', '\n{"id"') + "\n")
 
 
-def benchmark_maps(name: str, episodes: int, seed: int) -> None:
+def benchmark_maps(name: str, episodes: int, seed: int, workers: int = 2) -> None:
     """The maps of a benchmark set's stomachs, each committed with its stomach under models/anatomies/seed-N/.
 
     Resumable: a stomach whose map exists is skipped, so a stopped run goes on where it stopped.
@@ -486,10 +486,11 @@ def benchmark_maps(name: str, episodes: int, seed: int) -> None:
             continue
         if not (folder / "stomach.json").exists():
             anatomy.save(anatomy.generate(k), folder)
-        meta = make_map(episodes, seed, progress=False, anatomy_id=k)
+        t0 = time.time()
+        meta = make_map(episodes, seed, progress=False, anatomy_id=k, workers=workers)
         write_map(meta, map_path(folder))
-        print(f"{folder}: {meta['info']['classes']}, lists " + ", ".join(f"{n} {len(v)}" for n, v in
-                                                                        meta["lists"].items()), flush=True)
+        sizes = ", ".join(f"{n} {len(v)}" for n, v in meta["lists"].items())
+        print(f"{folder}: {meta['info']['classes']}, lists {sizes} ({time.time() - t0:.0f} s)", flush=True)
 
 
 def load_error(path: Path):
@@ -512,6 +513,7 @@ def main(argv: list[str] | None = None) -> int:
     m.add_argument("--anatomy", type=anatomy_arg, help="another stomach: a generated one's seed, a built folder, or "
                    f"a benchmark set ({', '.join(ANATOMY_SETS)}: every stomach of it, into models/anatomies/)")
     m.add_argument("--out", type=Path, help="default: targets.json in the stomach's folder")
+    m.add_argument("--workers", type=int, default=2, help="processes (the map does not depend on their number)")
     f = sub.add_parser("figure", help="free-space workspaces (versions 0 and 1) and the classified points")
     f.add_argument("--out", type=Path, default=paths.DATA / "docs" / "media" / "targets.png")
     d = sub.add_parser("lists", help="draw lists F, A and B again from the map's measured classes (no simulation)")
@@ -524,10 +526,10 @@ def main(argv: list[str] | None = None) -> int:
             print(f"wrote {figure(args.out)}")
             return
         if args.cmd == "map" and isinstance(args.anatomy, str) and args.anatomy in ANATOMY_SETS:
-            benchmark_maps(args.anatomy, args.episodes, args.seed)
+            benchmark_maps(args.anatomy, args.episodes, args.seed, args.workers)
             return
         if args.cmd == "map":
-            meta = make_map(args.episodes, args.seed, anatomy_id=args.anatomy)
+            meta = make_map(args.episodes, args.seed, anatomy_id=args.anatomy, workers=args.workers)
             args.out = args.out or map_path(anatomy.stomach_dir(args.anatomy))
         else:
             meta = redraw(json.loads(args.out.read_text()) if args.out.exists() else load_error(args.out), args.seed)

@@ -36,7 +36,7 @@ import numpy as np
 
 from mjendo import artifacts, cli, paths, scene, stats, targets
 from mjendo.artifacts import PolicyError
-from mjendo.config import CONDITIONS, FIDELITIES, POLICY_NAMES, ConfigError
+from mjendo.config import CONDITIONS, FIDELITIES, POLICY_NAMES, ConfigError, TaskConfig, task_config
 from mjendo.evaluation import EVAL_SEED_BASE, cells, run_trials
 from mjendo.train_config import load as load_config
 
@@ -113,6 +113,15 @@ def seed_folder(policy: str, seed: int) -> Path:
     return paths.policies_dir() / policy / "seeds" / f"seed{seed}"
 
 
+def _same_task(meta: dict, task: TaskConfig) -> bool:
+    """Whether a policy's meta names this task; fields added to TaskConfig since it was trained take their
+    defaults (a meta from before ``randomization`` existed trained without it)."""
+    try:
+        return task_config(**artifacts.trained_task(meta)) == task
+    except (ConfigError, TypeError):
+        return False
+
+
 def adopt_shipped(cfg: StudyConfig, policy: str, seed: int) -> bool:
     """Use a committed policy as this seed's run when it is exactly that run (same seed, task and budget).
 
@@ -128,7 +137,7 @@ def adopt_shipped(cfg: StudyConfig, policy: str, seed: int) -> bool:
         meta = artifacts.read_meta(source) if (source / artifacts.META_FILE).exists() else {}
         if meta.get("seed") != seed or meta.get("training", {}).get("total_timesteps") != tc.total_timesteps:
             continue
-        if meta.get("task") != asdict(tc.task_config()) or meta.get("init_from"):
+        if not _same_task(meta, tc.task_config()) or meta.get("init_from"):
             continue
         run.mkdir(parents=True)
         for name in (artifacts.META_FILE, artifacts.CONFIG_FILE, artifacts.MODEL_FILE, artifacts.NORM_FILE,

@@ -139,6 +139,10 @@ class EndoscopeEnv(gym.Env):
         self.action_space = gym.spaces.Box(-PAPER_ACTION_LIMIT, PAPER_ACTION_LIMIT, (ACTION_SIZE,), np.float32)
         self.observation_space = gym.spaces.Box(self.task.obs_low, self.task.obs_high, dtype=np.float32)
 
+    def anatomy_task(self, k: int) -> NavigationTask:
+        """The task in the k-th stomach the episodes are drawn from (built on first use)."""
+        return self._task(k)
+
     def _task(self, k: int) -> NavigationTask:
         if k not in self._tasks:
             self._tasks[k] = NavigationTask(replace(self._cfg, anatomy=self._members[k]))

@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mjendo import cli, paths, rollout
+from mjendo import cli, paths, rollout, targets
 from mjendo.artifacts import PolicyError
 from mjendo.config import (
     CONDITIONS,
@@ -117,12 +117,23 @@ class Trial:
     target_motion_mm: float = math.nan  # farthest the target moved from where it was at the trial's start
     duration_s: float = math.nan  # simulated time of the trial
     error: str = ""
+    anatomy: str = ""  # the stomach (a generated one's seed, a folder; "" the built-in one)
+    target_class: str = ""  # the target's class in its stomach's map (free, contact_aided)
 
 
-def trial_targets(env, n: int, first: int = 0) -> list[int]:
-    """Trials by design: trial i aims at target i mod len(list), each target as often (load phase by the seed)."""
-    listed = env.task.targets.tolist()
-    return [listed[i % len(listed)] for i in range(first, first + n)]
+def trial_targets(env, n: int, first: int = 0) -> list[tuple[int | None, int]]:
+    """Trials by design: (stomach index, target) of trials first .. first + n - 1.
+
+    In one stomach trial i aims at target i mod len(list); over a set of m stomachs trial i runs in stomach
+    i mod m and aims at its target (i // m) mod len(its list): every stomach and target as often, the load
+    phase drawn by the trial's seed.
+    """
+    m = len(env.anatomies)
+    if m == 1:
+        listed = env.task.targets.tolist()
+        return [(None, listed[i % len(listed)]) for i in range(first, first + n)]
+    lists = [env.anatomy_task(k).targets.tolist() for k in range(m)]
+    return [(i % m, lists[i % m][(i // m) % len(lists[i % m])]) for i in range(first, first + n)]
 
 
 def trial_records(env, ctrl, name: str, seeds: list[int], keep_paths: bool = False,
@@ -133,10 +144,11 @@ def trial_records(env, ctrl, name: str, seeds: list[int], keep_paths: bool = Fal
     and starts at the load phase its seed draws.
     """
     trials, paths = [], []
-    for i, (seed, target) in enumerate(zip(seeds, trial_targets(env, len(seeds), first), strict=True), start=first):
+    for i, (seed, (where, target)) in enumerate(zip(seeds, trial_targets(env, len(seeds), first), strict=True),
+                                                start=first):
         forces, tips, dists, contact_step, contact_pos = [], [], [], math.nan, None
         start, motion = None, 0.0
-        for s in rollout.episode(env, ctrl, seed=seed, target=target):
+        for s in rollout.episode(env, ctrl, seed=seed, target=target, anatomy_index=where):
             here = env.task.target_pos()
             start = here if start is None else start
             motion = max(motion, float(np.linalg.norm(here - start)))
@@ -156,7 +168,8 @@ def trial_records(env, ctrl, name: str, seeds: list[int], keep_paths: bool = Fal
                             float(k) if ok else math.nan, bool(info["exited"]), float(np.mean(f)),
                             float(np.max(f)), contact_step, float(np.mean(f > 0)), float(f[-1]),
                             float(np.mean(f > 1.0)), float(np.mean(f > 2.0)), float(to_mm(motion)),
-                            k * env.task.control_dt))
+                            k * env.task.control_dt, "", anatomy_name(env.task.cfg.anatomy),
+                            str(env.task.target_classes[env.task._row])))
         if keep_paths:
             paths.append({"target": info["target_index"], "target_mm": to_mm(start), "tip_mm": np.array(tips),
                           "force_n": np.array(forces),
@@ -164,31 +177,36 @@ def trial_records(env, ctrl, name: str, seeds: list[int], keep_paths: bool = Fal
     return trials, paths
 
 
+def anatomy_name(anatomy) -> str:
+    return "" if anatomy is None else str(anatomy)
+
+
 def run_trials(controller: str, env_name: str, seeds: list[int], keep_paths: bool = False,
-               fidelity: str = "fast", version: int = CURRENT_VERSION, first: int = 0) -> tuple[list, list]:
+               fidelity: str = "fast", version: int = CURRENT_VERSION, first: int = 0,
+               anatomy=None) -> tuple[list, list]:
     """Run trials of one cell; a broken policy marks every trial with its error instead of raising."""
     from mjendo.envs import EndoscopeEnv
     from mjendo.policies import load_controller, obs_options_of, version_of
 
     try:
         env = EndoscopeEnv(env_name, **obs_options_of(controller), max_steps=PAPER_EVAL_STEPS,
-                           fidelity=fidelity, version=version_of(controller, version))
+                           fidelity=fidelity, version=version_of(controller, version), anatomy=anatomy)
         ctrl = load_controller(controller, env.task)
     except Exception as exc:  # reported per cell, the other cells still run
         msg = f"{type(exc).__name__}: {exc}".replace("\n", " ")
         nan = float("nan")
-        return [Trial(controller, env_name, i, s, -1, False, nan, 0, nan, False, nan, nan, nan, error=msg)
-                for i, s in enumerate(seeds, start=first)], []
+        return [Trial(controller, env_name, i, s, -1, False, nan, 0, nan, False, nan, nan, nan, error=msg,
+                      anatomy=anatomy_name(anatomy)) for i, s in enumerate(seeds, start=first)], []
     return trial_records(env, ctrl, controller, seeds, keep_paths, first)
 
 
 def _job(args):
-    controller, env_name, seeds, keep, fidelity, version, first = args
+    controller, env_name, seeds, keep, fidelity, version, first, anatomy = args
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     import torch
 
     torch.set_num_threads(1)
-    return run_trials(controller, env_name, seeds, keep, fidelity, version, first)
+    return run_trials(controller, env_name, seeds, keep, fidelity, version, first, anatomy)
 
 
 def wilson(successes: int, n: int, z: float = 1.96) -> tuple[float, float]:
@@ -250,14 +268,14 @@ def target_classes() -> dict[int, str]:
 
 
 def per_target(trials: list[Trial]) -> list[dict]:
-    """Success per cell and target, with the target's class in the reachability map (version 1 targets)."""
-    classes = target_classes()
+    """Success per cell, stomach and target, with the target's class in its stomach's reachability map."""
     groups: dict[tuple, list[Trial]] = {}
     for t in trials:
-        groups.setdefault((t.controller, t.env, t.target), []).append(t)
-    return [{"controller": c, "env": e, "target": k, "class": classes.get(k, ""), "trials": len(ts),
-             "successes": sum(t.success for t in ts), "mean_final_mm": float(np.mean([t.final_mm for t in ts]))}
-            for (c, e, k), ts in groups.items()]
+        groups.setdefault((t.controller, t.env, t.anatomy, t.target), []).append(t)
+    return [{"controller": c, "env": e, "anatomy": a, "target": k, "class": ts[0].target_class,
+             "trials": len(ts), "successes": sum(t.success for t in ts),
+             "mean_final_mm": float(np.mean([t.final_mm for t in ts]))}
+            for (c, e, a, k), ts in groups.items()]
 
 
 def by_class(targets: list[dict]) -> list[dict]:
@@ -286,13 +304,14 @@ def _git_commit() -> str:
 
 
 def write_report(rows: list[dict], out: Path, command: str, wall_s: float, n: int, fidelity: str = "fast",
-                 made: list | None = None, classes: list[dict] | None = None) -> Path:
+                 made: list | None = None, classes: list[dict] | None = None, anatomy=None) -> Path:
     """report.md: ours next to the paper's tables, then every figure embedded with its caption."""
     stomach = {"fast": "the fast (reduced-order, calibrated) stomach", "full": "the full per-vertex FEM stomach"}
     lines = [
         "# mjendo evaluation vs the paper",
         "",
-        f"Stomach: {stomach[fidelity]} (`fidelity={fidelity}`).  ",
+        f"Stomach: {stomach[fidelity]} (`fidelity={fidelity}`)"
+        + ("" if anatomy is None else f", anatomy `{anatomy}` (trials spread evenly over its stomachs)") + ".  ",
         f"Command: `{command}`  ",
         f"Commit: `{_git_commit()}`, wall time {wall_s / 60:.1f} min, {n} trials per cell, 80 steps each "
         f"(success: final tip error < {PAPER_SUCCESS_MM:g} mm).",
@@ -355,8 +374,11 @@ def _write_csv(path: Path, rows: list[dict]) -> None:
 
 def evaluate(trials: int = 200, controllers=CONTROLLERS, workers: int = 2, out: Path | None = None, seed: int = 0,
              command: str = "make eval", fidelity: str = "fast", envs: tuple[str, ...] | None = None,
-             overwrite: bool = False, version: int = CURRENT_VERSION) -> dict:
-    """Every cell's trials; policies act in the task version they trained in, the baseline in ``version``."""
+             overwrite: bool = False, version: int = CURRENT_VERSION, anatomy=None) -> dict:
+    """Every cell's trials; policies act in the task version they trained in, the baseline in ``version``.
+
+    ``anatomy``: another stomach or a set of them (TaskConfig.anatomy); trials spread evenly over a set.
+    """
     from tqdm import tqdm
 
     if trials < 1 or workers < 1 or seed < 0:
@@ -372,7 +394,7 @@ def evaluate(trials: int = 200, controllers=CONTROLLERS, workers: int = 2, out: 
         seeds = [EVAL_SEED_BASE + seed * 100003 + i for i in range(trials)]
         for j in range(0, trials, chunk):
             keep = c == "E" and e == "DE" and j == 0
-            jobs.append((c, e, seeds[j:j + chunk], keep, fidelity, version, j))
+            jobs.append((c, e, seeds[j:j + chunk], keep, fidelity, version, j, anatomy))
     t0 = time.time()
     all_trials, tip_paths = [], []
     with get_context("spawn").Pool(workers) as pool:
@@ -390,7 +412,7 @@ def evaluate(trials: int = 200, controllers=CONTROLLERS, workers: int = 2, out: 
     from mjendo import figures
 
     made = figures.all_figures(rows, tip_paths, out)
-    report = write_report(rows, out, command, wall, trials, fidelity, made, by_class(targets))
+    report = write_report(rows, out, command, wall, trials, fidelity, made, by_class(targets), anatomy)
     print(report.read_text())
     print(f"wrote {out} in {wall / 60:.1f} min")
     return {"rows": rows, "wall_s": wall}
@@ -412,11 +434,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--overwrite", action="store_true", help="replace a report made with more trials per cell")
     ap.add_argument("--version", type=int, default=CURRENT_VERSION, choices=sorted(VERSIONS),
                     help="task version of the baseline's trials (policies act in the version they trained in)")
+    ap.add_argument("--anatomy", type=targets.anatomy_arg,
+                    help="other stomachs: a generated one's seed, a built folder, or a set (train, test: "
+                    "trials spread evenly over its stomachs)")
     a = ap.parse_args(argv)
     command = "python -m mjendo.evaluation " + " ".join(argv if argv is not None else sys.argv[1:])
     return cli.run(lambda: evaluate(a.trials, tuple(a.policies.split(",")), a.workers, a.out, a.seed, command=command,
                                     fidelity=a.fidelity, envs=tuple(a.envs.split(",")) if a.envs else None,
-                                    overwrite=a.overwrite, version=a.version), ConfigError, PolicyError)
+                                    overwrite=a.overwrite, version=a.version, anatomy=a.anatomy),
+                   ConfigError, PolicyError)
 
 
 if __name__ == "__main__":

@@ -25,13 +25,15 @@ class Step:
         return self.terminated or self.truncated
 
 
-def episode(env, ctrl, seed: int | None = None, target: int | None = None) -> Iterator[Step]:
+def episode(env, ctrl, seed: int | None = None, target: int | None = None,
+            anatomy_index: int | None = None) -> Iterator[Step]:
     """Reset ``env`` (an EndoscopeEnv) and run ``ctrl`` until the episode terminates or is truncated.
 
-    Yields the reset first (index 0), then every step. ``target`` aims the
-    episode at one vertex of the condition's list.
+    Yields the reset first (index 0), then every step. ``target`` aims the episode at one target of the
+    condition's list; ``anatomy_index`` picks the stomach of an environment drawing from a set.
     """
-    options = {"target_index": target} if target is not None else None
+    options = {k: v for k, v in (("target_index", target), ("anatomy_index", anatomy_index)) if v is not None} \
+        or None
     obs, info = env.reset(seed=seed, options=options)
     ctrl.reset(env.task)
     yield Step(0, obs, None, 0.0, False, False, {**info, "step": 0})

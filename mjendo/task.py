@@ -108,6 +108,8 @@ class NavigationTask:
         # Each listed target's lumen triangle and weights, in list order (the batched backend reads them too).
         self.target_tri, self.target_bary = table.tris[rows], table.bary[rows]
         self.contact_aided = table.contact_aided(self.targets)
+        # The map's class of each listed target ("free", "contact_aided"; "" where the table has none: version 0).
+        self.target_classes = table.classes[rows] if table.classes is not None else np.full(len(rows), "", object)
         self.target_p: np.ndarray | None = None  # sampling probabilities of the list's targets; None: uniform
         self.cable_step = from_mm(c.cable_mm_per_unit)
         self.insertion_step = from_mm(c.insertion_mm_per_unit)

@@ -155,8 +155,8 @@ def test_trials_cover_every_target_equally_however_they_are_chunked():
     n = 2 * len(listed) + 3
     whole = trial_targets(env, n)
     chunked = [t for j in range(0, n, 7) for t in trial_targets(env, min(7, n - j), j)]
-    assert whole == chunked and set(whole) == set(listed)
-    counts = [whole.count(t) for t in listed]
+    assert whole == chunked and {k for k, _ in whole} == {None} and {t for _, t in whole} == set(listed)
+    counts = [whole.count((None, t)) for t in listed]
     assert max(counts) - min(counts) <= 1
 
 

@@ -259,7 +259,8 @@ def slim_copy(src: Path, dest: Path) -> None:
 
 
 def ship(run: Path, policy: str, dest: Path | None = None) -> Path:
-    """Copy a finished run's final policy into models/policies/<policy>/ (what users get).
+    """Copy a finished run's final policy into models/policies/<policy>/ (what users get); a variant's run
+    (train/policies.yaml's variants) into models/policies/variants/<policy>-<variant>/, beside the paper's.
 
     Model (without optimizer moments), normalisation, meta and config only: logs stay in the run.
     The run's own meta.json travels with it: what the run used, never today's defaults. Final
@@ -271,7 +272,9 @@ def ship(run: Path, policy: str, dest: Path | None = None) -> Path:
     if not (run / MODEL_FILE).exists() or not meta.get("timesteps"):
         raise PolicyError(f"{run} is not a finished run (no {MODEL_FILE} or no trained steps in {META_FILE}); "
                           "finish it with the same `make train` command first")
-    dest = Path(dest) if dest else paths.policies_dir() / policy
+    variant = meta.get("training", {}).get("variant")
+    dest = Path(dest) if dest else paths.policies_dir() / "variants" / f"{policy}-{variant}" if variant \
+        else paths.policies_dir() / policy
     dest.mkdir(parents=True, exist_ok=True)
     for name in (CONFIG_FILE, NORM_FILE):
         if (run / name).exists():

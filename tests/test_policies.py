@@ -22,9 +22,13 @@ E0 = V0 / "E"
 # Every shipped policy folder: version 0's five, and the current version's as far as they are shipped.
 SHIPPED = [(0, V0 / p, p) for p in TRAINED_IN] + [(1, policies_dir() / p, p) for p in TRAINED_IN
                                                    if (policies_dir() / p / artifacts.MODEL_FILE).exists()]
+# Shipped variants (models/policies/variants/<P>-<variant>/) are held to the same test.
+SHIPPED += [(1, f, artifacts.read_meta(f)["policy"]) for f in sorted((policies_dir() / "variants").glob("*"))
+            if (f / artifacts.MODEL_FILE).exists()]
 
 
-@pytest.mark.parametrize("version,folder,policy", SHIPPED, ids=[f"v{v}-{p}" for v, _, p in SHIPPED])
+@pytest.mark.parametrize("version,folder,policy", SHIPPED,
+                         ids=[f"v{v}-{p}" if f.parent.name != "variants" else f"v{v}-{f.name}" for v, f, p in SHIPPED])
 def test_every_shipped_policy_loads_and_reaches_a_target_in_its_environment(version, folder, policy):
     meta = artifacts.read_meta(folder)
     assert meta["task"]["env"] == TRAINED_IN[policy] and meta["timesteps"] > 100_000
@@ -134,6 +138,10 @@ def test_ship_copies_what_the_run_recorded(tmp_path, monkeypatch, policy_copy):
     # Model, normalisation, meta and config only; the model without the optimizer's moments, and it loads.
     assert {p.name for p in dest.iterdir()} <= {"config.yaml", "meta.json", "model.zip", "vecnormalize.pkl"}
     assert artifacts.load(dest).model.policy is not None
+    # A variant's run ships beside the paper's policy, never over it.
+    meta["training"]["variant"] = "free-pool"
+    (policy_copy / "meta.json").write_text(json.dumps(meta))
+    assert artifacts.ship(policy_copy, "E") == tmp_path / "shipped" / "variants" / "E-free-pool"
     meta["timesteps"] = 0
     (policy_copy / "meta.json").write_text(json.dumps(meta))
     with pytest.raises(PolicyError, match="not a finished run"):

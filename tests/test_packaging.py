@@ -1,5 +1,6 @@
 """mjendo outside the checkout: a wheel installed into a fresh virtualenv runs policy E; imports stay light."""
 
+import re
 import subprocess
 import sys
 import sysconfig
@@ -94,3 +95,13 @@ def test_the_tracked_tree_holds_code_models_and_results_not_runs():
     assert sum(sizes.values()) < 25e6
     big = [p for p, n in sizes.items() if n > 2e6 and not (p.startswith("docs/media/") and p.endswith(".mp4"))]
     assert not big, big
+
+
+def test_readme_and_docs_describe_the_product_not_how_it_was_built():
+    """History belongs in CHANGELOG.md: the README and docs/ say what is true now, in under 160 lines."""
+    pages = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+    worklog = re.compile(r"\b(sessions?|rounds?)\b", re.IGNORECASE)
+    found = [f"{p.name}:{i}" for p in pages for i, line in enumerate(p.read_text().splitlines(), 1)
+             if worklog.search(line)]
+    assert not found, found
+    assert len((ROOT / "README.md").read_text().splitlines()) < 160

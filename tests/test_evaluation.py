@@ -161,12 +161,18 @@ def test_trials_cover_every_target_equally_however_they_are_chunked():
 
 
 def test_success_by_target_class_counts_each_class_apart():
-    from mjendo.evaluation import by_class
+    from mjendo.evaluation import Trial, by_class
 
-    rows = [{"controller": "E", "env": "DE", "target": 1, "class": "free", "trials": 2, "successes": 2},
-            {"controller": "E", "env": "DE", "target": 2, "class": "contact_aided", "trials": 2, "successes": 1},
-            {"controller": "E", "env": "DE", "target": 3, "class": "contact_aided", "trials": 2, "successes": 0},
-            {"controller": "E", "env": "DE", "target": 4, "class": "between", "trials": 5, "successes": 5}]
-    (row,) = by_class(rows)
-    assert row["free_sr"] == 100.0 and row["free_trials"] == 2
+    def trial(target, cls, success, step, final):
+        return Trial("E", "DE", 0, 0, target, success, final, 80, step, False, 0.0, 0.0, math.nan,
+                     target_class=cls)
+
+    trials = [trial(1, "free", True, 20, 1.0), trial(1, "free", True, 30, 2.0),
+              trial(2, "contact_aided", True, 70, 2.5), trial(2, "contact_aided", False, math.nan, 6.0),
+              trial(3, "contact_aided", False, math.nan, 9.0), trial(3, "contact_aided", False, math.nan, 4.0),
+              *[trial(4, "between", True, 10, 1.0)] * 5]
+    (row,) = by_class(trials)
+    assert row["free_sr"] == 100.0 and row["free_trials"] == 2 and row["free_success_step"] == 25.0
+    assert math.isnan(row["free_miss_mm"])  # no failures
     assert row["contact_aided_sr"] == 25.0 and row["contact_aided_trials"] == 4  # 'between' is neither
+    assert row["contact_aided_success_step"] == 70.0 and row["contact_aided_miss_mm"] == 6.0

@@ -183,13 +183,13 @@ def anatomy_name(anatomy) -> str:
 
 def run_trials(controller: str, env_name: str, seeds: list[int], keep_paths: bool = False,
                fidelity: str = "fast", version: int = CURRENT_VERSION, first: int = 0,
-               anatomy=None) -> tuple[list, list]:
+               anatomy=None, steps: int = PAPER_EVAL_STEPS) -> tuple[list, list]:
     """Run trials of one cell; a broken policy marks every trial with its error instead of raising."""
     from mjendo.envs import EndoscopeEnv
     from mjendo.policies import load_controller, obs_options_of, version_of
 
     try:
-        env = EndoscopeEnv(env_name, **obs_options_of(controller), max_steps=PAPER_EVAL_STEPS,
+        env = EndoscopeEnv(env_name, **obs_options_of(controller), max_steps=steps,
                            fidelity=fidelity, version=version_of(controller, version), anatomy=anatomy)
         ctrl = load_controller(controller, env.task)
     except Exception as exc:  # reported per cell, the other cells still run
@@ -201,12 +201,12 @@ def run_trials(controller: str, env_name: str, seeds: list[int], keep_paths: boo
 
 
 def _job(args):
-    controller, env_name, seeds, keep, fidelity, version, first, anatomy = args
+    controller, env_name, seeds, keep, fidelity, version, first, anatomy, steps = args
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     import torch
 
     torch.set_num_threads(1)
-    return run_trials(controller, env_name, seeds, keep, fidelity, version, first, anatomy)
+    return run_trials(controller, env_name, seeds, keep, fidelity, version, first, anatomy, steps)
 
 
 def wilson(successes: int, n: int, z: float = 1.96) -> tuple[float, float]:
@@ -314,7 +314,8 @@ def _git_commit() -> str:
 
 
 def write_report(rows: list[dict], out: Path, command: str, wall_s: float, n: int, fidelity: str = "fast",
-                 made: list | None = None, classes: list[dict] | None = None, anatomy=None) -> Path:
+                 made: list | None = None, classes: list[dict] | None = None, anatomy=None,
+                 steps: int = PAPER_EVAL_STEPS) -> Path:
     """report.md: ours next to the paper's tables, then every figure embedded with its caption."""
     stomach = {"fast": "the fast (reduced-order, calibrated) stomach", "full": "the full per-vertex FEM stomach"}
     lines = [
@@ -323,7 +324,7 @@ def write_report(rows: list[dict], out: Path, command: str, wall_s: float, n: in
         f"Stomach: {stomach[fidelity]} (`fidelity={fidelity}`)"
         + ("" if anatomy is None else f", anatomy `{anatomy}` (trials spread evenly over its stomachs)") + ".  ",
         f"Command: `{command}`  ",
-        f"Commit: `{_git_commit()}`, wall time {wall_s / 60:.1f} min, {n} trials per cell, 80 steps each "
+        f"Commit: `{_git_commit()}`, wall time {wall_s / 60:.1f} min, {n} trials per cell, {steps} steps each "
         f"(success: final tip error < {PAPER_SUCCESS_MM:g} mm).",
         "",
         "SR: success rate % (95 % Wilson interval). AE: average final error in mm over the *successful* "
@@ -362,7 +363,7 @@ def write_report(rows: list[dict], out: Path, command: str, wall_s: float, n: in
                   "Success % over the trials that aimed at free targets (reached in free space) and at "
                   "contact-aided ones (10 mm or more beyond free-space reach, reached with the wall), by the "
                   "reachability map's classes (docs/task.md); trials in brackets. Success step: the median "
-                  "step (of 80) at which successful trials arrived; miss: the median final error of the "
+                  f"step (of {steps}) at which successful trials arrived; miss: the median final error of the "
                   "failed ones.", "",
                   "| policy | env | free SR % | success step | miss mm | contact-aided SR % | success step | "
                   "miss mm |", "|---|---|---|---|---|---|---|---|"]
@@ -388,15 +389,19 @@ def _write_csv(path: Path, rows: list[dict]) -> None:
 
 def evaluate(trials: int = 200, controllers=CONTROLLERS, workers: int = 2, out: Path | None = None, seed: int = 0,
              command: str = "make eval", fidelity: str = "fast", envs: tuple[str, ...] | None = None,
-             overwrite: bool = False, version: int = CURRENT_VERSION, anatomy=None) -> dict:
+             overwrite: bool = False, version: int = CURRENT_VERSION, anatomy=None,
+             steps: int = PAPER_EVAL_STEPS) -> dict:
     """Every cell's trials; policies act in the task version they trained in, the baseline in ``version``.
 
     ``anatomy``: another stomach or a set of them (TaskConfig.anatomy); trials spread evenly over a set.
+    ``steps``: the trial's length (the paper's 80; longer ones measure what the trial's time costs, and
+    success by step 80 in them is the 80-step trial's, the trajectories being the same).
     """
     from tqdm import tqdm
 
-    if trials < 1 or workers < 1 or seed < 0:
-        raise ConfigError(f"--trials and --workers must be >= 1 and --seed >= 0 (got {trials}, {workers}, {seed})")
+    if trials < 1 or workers < 1 or seed < 0 or steps < 1:
+        raise ConfigError("--trials, --workers and --trial-steps must be >= 1 and --seed >= 0 "
+                          f"(got {trials}, {workers}, {steps}, {seed})")
     check_controllers(controllers)
     out = Path(out) if out is not None else default_out(fidelity)
     guard_overwrite(out, trials, overwrite)
@@ -408,7 +413,7 @@ def evaluate(trials: int = 200, controllers=CONTROLLERS, workers: int = 2, out: 
         seeds = [EVAL_SEED_BASE + seed * 100003 + i for i in range(trials)]
         for j in range(0, trials, chunk):
             keep = c == "E" and e == "DE" and j == 0
-            jobs.append((c, e, seeds[j:j + chunk], keep, fidelity, version, j, anatomy))
+            jobs.append((c, e, seeds[j:j + chunk], keep, fidelity, version, j, anatomy, steps))
     t0 = time.time()
     all_trials, tip_paths = [], []
     with get_context("spawn").Pool(workers) as pool:
@@ -426,7 +431,7 @@ def evaluate(trials: int = 200, controllers=CONTROLLERS, workers: int = 2, out: 
     from mjendo import figures
 
     made = figures.all_figures(rows, tip_paths, out)
-    report = write_report(rows, out, command, wall, trials, fidelity, made, by_class(all_trials), anatomy)
+    report = write_report(rows, out, command, wall, trials, fidelity, made, by_class(all_trials), anatomy, steps)
     print(report.read_text())
     print(f"wrote {out} in {wall / 60:.1f} min")
     return {"rows": rows, "wall_s": wall}
@@ -448,6 +453,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--overwrite", action="store_true", help="replace a report made with more trials per cell")
     ap.add_argument("--version", type=int, default=CURRENT_VERSION, choices=sorted(VERSIONS),
                     help="task version of the baseline's trials (policies act in the version they trained in)")
+    ap.add_argument("--trial-steps", type=int, default=PAPER_EVAL_STEPS,
+                    help="trial length (the paper's 80; longer: what the trial's time costs)")
     ap.add_argument("--anatomy", type=targets.anatomy_arg,
                     help="other stomachs: a generated one's seed, a built folder, or a set (train, test: "
                     "trials spread evenly over its stomachs)")
@@ -455,7 +462,8 @@ def main(argv: list[str] | None = None) -> int:
     command = "python -m mjendo.evaluation " + " ".join(argv if argv is not None else sys.argv[1:])
     return cli.run(lambda: evaluate(a.trials, tuple(a.policies.split(",")), a.workers, a.out, a.seed, command=command,
                                     fidelity=a.fidelity, envs=tuple(a.envs.split(",")) if a.envs else None,
-                                    overwrite=a.overwrite, version=a.version, anatomy=a.anatomy),
+                                    overwrite=a.overwrite, version=a.version, anatomy=a.anatomy,
+                                    steps=a.trial_steps),
                    ConfigError, PolicyError)
 
 

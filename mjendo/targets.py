@@ -356,6 +356,33 @@ def classify(free_mm: np.ndarray, wall_mm: np.ndarray, phase_mm: np.ndarray) -> 
     return cls
 
 
+def arrival_steps(list_name: str, path: Path = TARGETS_FILE) -> dict[int, list[int | None]]:
+    """Step (1-80) at which each listed contact-aided point's recorded demonstrator first comes within the
+    success distance, in SE and from each DE load phase (None: not within the trial): how much of a trial
+    the fastest known way there needs, so how much slack a policy has."""
+    from mjendo.task import NavigationTask
+
+    meta = json.loads(Path(path).read_text())
+    points = {p["id"]: p for p in meta["points"]}
+    listed = [i for i in meta["lists"][list_name] if points[i]["class"] == "contact_aided"]
+    steps: dict[int, list[int | None]] = {i: [] for i in listed}
+    rng = np.random.default_rng(0)
+    for run, (env, phase) in enumerate([("SE", None)] + [("DE", p) for p in range(PHASES)]):
+        task = NavigationTask(env=env, target_list=list_name, max_steps=10**6, randomize_phase=False)
+        start = None if phase is None else phase * len(task.start_states) // PHASES
+        for i in listed:
+            task.reset(rng, start)
+            task.set_target(i)
+            first = None
+            for k in range(TRIAL_STEPS):
+                task.step(demo_action(DEMOS[points[i]["demos"][run]], k))
+                if task.distance_mm() < PAPER_SUCCESS_MM:
+                    first = k + 1
+                    break
+            steps[i].append(first)
+    return steps
+
+
 def spread(points: np.ndarray, order: np.ndarray, spacing: float) -> list[int]:
     """Greedy subset of ``order`` whose points lie at least ``spacing`` apart."""
     kept: list[int] = []
@@ -516,6 +543,8 @@ def main(argv: list[str] | None = None) -> int:
     m.add_argument("--workers", type=int, default=2, help="processes (the map does not depend on their number)")
     f = sub.add_parser("figure", help="free-space workspaces (versions 0 and 1) and the classified points")
     f.add_argument("--out", type=Path, default=paths.DATA / "docs" / "media" / "targets.png")
+    sl = sub.add_parser("slack", help="the step at which each listed contact-aided target's demonstrator arrives")
+    sl.add_argument("--list", default="A", choices=("A", "B"))
     d = sub.add_parser("lists", help="draw lists F, A and B again from the map's measured classes (no simulation)")
     d.add_argument("--seed", type=int, default=0)
     d.add_argument("--out", type=Path, default=TARGETS_FILE)
@@ -524,6 +553,14 @@ def main(argv: list[str] | None = None) -> int:
     def command() -> None:
         if args.cmd == "figure":
             print(f"wrote {figure(args.out)}")
+            return
+        if args.cmd == "slack":
+            latest = [max(s) if None not in s else None for s in arrival_steps(args.list).values()]
+            arrived = np.array([s for s in latest if s is not None])
+            print(f"list {args.list}: {len(latest)} contact-aided targets; the demonstrator arrives (latest of SE and "
+                  f"the {PHASES} DE phases) by step {TRIAL_STEPS} at {len(arrived)}; median step "
+                  f"{np.median(arrived):.0f}, quartiles {np.percentile(arrived, 25):.0f}-"
+                  f"{np.percentile(arrived, 75):.0f}, after step 70 at {np.mean(arrived > 70):.0%}")
             return
         if args.cmd == "map" and isinstance(args.anatomy, str) and args.anatomy in ANATOMY_SETS:
             benchmark_maps(args.anatomy, args.episodes, args.seed, args.workers)

@@ -176,3 +176,20 @@ def test_success_by_target_class_counts_each_class_apart():
     assert math.isnan(row["free_miss_mm"])  # no failures
     assert row["contact_aided_sr"] == 25.0 and row["contact_aided_trials"] == 4  # 'between' is neither
     assert row["contact_aided_success_step"] == 70.0 and row["contact_aided_miss_mm"] == 6.0
+
+
+def test_a_longer_trial_replays_the_paper_trial_and_goes_on(tmp_path):
+    # The same seed and controller: the first 80 steps are the 80-step trial's, then the trial continues.
+    from mjendo.evaluation import run_trials
+
+    seeds = [30_000_000 + i for i in range(2)]
+    short, _ = run_trials("baseline", "SE", seeds)
+    long, _ = run_trials("baseline", "SE", seeds, steps=95)
+    for s, lg in zip(short, long, strict=True):
+        assert s.target == lg.target and s.steps <= 80 and lg.steps <= 95
+        if s.success:
+            assert (lg.success, lg.steps, lg.final_mm) == (s.success, s.steps, s.final_mm)
+        else:
+            assert s.steps == 80 and (lg.success or lg.steps == 95)
+    with pytest.raises(ConfigError, match="--trial-steps must be >= 1"):
+        evaluate(trials=1, controllers=("baseline",), out=tmp_path, steps=0)

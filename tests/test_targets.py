@@ -130,3 +130,17 @@ def test_a_missing_target_table_says_how_to_make_it(tmp_path):
                                           r"`python -m mjendo.targets map`"):
         targets.load(CURRENT_VERSION, tmp_path / "targets.json")
     assert targets.load(0, tmp_path / "targets.json").lists["A"]  # version 0's vertex targets need no table
+
+
+def test_slack_replays_each_demonstrator_to_its_first_arrival(tmp_path):
+    # Two of list A's contact-aided targets: each recorded demonstrator arrives within the trial, in SE and from
+    # every load phase, and none sooner than 30 steps (75 mm of full-speed insertion): they lie deep.
+    meta = json.loads(targets.TARGETS_FILE.read_text())
+    meta["lists"]["A"] = aided("A")[:2]
+    path = tmp_path / "targets.json"
+    path.write_text(json.dumps(meta))
+    steps = targets.arrival_steps("A", path)
+    assert list(steps) == aided("A")[:2]
+    for point, per_run in steps.items():
+        assert len(per_run) == 1 + targets.PHASES and None not in per_run, (point, per_run)
+        assert 30 <= min(per_run) and max(per_run) <= targets.TRIAL_STEPS, (point, per_run)

@@ -130,16 +130,18 @@ def adopt_shipped(cfg: StudyConfig, policy: str, seed: int) -> bool:
     policy. The budget is the run's configured total_timesteps (the shipped one trained for 1M steps is
     not a 2k-step smoke-test run).
     """
+    from mjendo.train import latest_checkpoint
+
     run, tc = run_folder(cfg, policy, seed), train_config(cfg, policy, seed)
-    if run.exists():
-        return False
+    if run.exists() and (latest_checkpoint(run) is not None or (run / artifacts.MODEL_FILE).exists()):
+        return False  # a run of its own (an empty folder, e.g. a start that failed, is not: else 1M steps again)
     for source in (seed_folder(policy, seed), paths.policies_dir() / policy):
         meta = artifacts.read_meta(source) if (source / artifacts.META_FILE).exists() else {}
         if meta.get("seed") != seed or meta.get("training", {}).get("total_timesteps") != tc.total_timesteps:
             continue
         if not _same_task(meta, tc.task_config()) or meta.get("init_from"):
             continue
-        run.mkdir(parents=True)
+        run.mkdir(parents=True, exist_ok=True)
         for name in (artifacts.META_FILE, artifacts.CONFIG_FILE, artifacts.MODEL_FILE, artifacts.NORM_FILE,
                      *artifacts.LOG_FILES, *(per_stomach(f, fid) for f in (RESULTS_FILE, VALIDATION_FILE)
                                              for fid in FIDELITIES)):

@@ -244,8 +244,10 @@ def test_a_published_seed_is_adopted_with_its_study_trials(tmp_path, monkeypatch
     shutil.copytree(paths.MODELS / "policies" / "A", published)
     (published / RESULTS_FILE).write_text("controller,env\n")
     cfg = StudyConfig(policies=("A",), seeds=(0,), runs=tmp_path / "runs")
-    assert adopt_shipped(cfg, "A", 0)
     run = run_folder(cfg, "A", 0)
+    (run / "tb").mkdir(parents=True)  # a folder without a checkpoint or a model (a start that failed)
+    (run / "episodes.csv").write_text("timesteps,reward,length,success,final_mm\n")
+    assert adopt_shipped(cfg, "A", 0)
     assert (run / artifacts.MODEL_FILE).exists() and (run / RESULTS_FILE).exists() and (run / "ADOPTED").exists()
     assert not adopt_shipped(cfg, "A", 0)  # the run exists now: never overwritten
     # Another seed's files are not this seed's run.

@@ -358,8 +358,9 @@ def classify(free_mm: np.ndarray, wall_mm: np.ndarray, phase_mm: np.ndarray) -> 
 
 def arrival_steps(list_name: str, path: Path = TARGETS_FILE) -> dict[int, list[int | None]]:
     """Step (1-80) at which each listed contact-aided point's recorded demonstrator first comes within the
-    success distance, in SE and from each DE load phase (None: not within the trial): how much of a trial
-    the fastest known way there needs, so how much slack a policy has."""
+    success distance, in SE and from each DE load phase (None: not within the trial). The recorded one is
+    the demonstrator that came closest, not necessarily the fastest: an upper bound on the time a known
+    way there needs, so on how little slack a policy has."""
     from mjendo.task import NavigationTask
 
     meta = json.loads(Path(path).read_text())

@@ -66,6 +66,9 @@ class StudyConfig:
 
     policies: tuple[str, ...] = ("D", "E")
     seeds: tuple[int, ...] = (0, 1, 2)
+    # Per-policy seed lists that replace ``seeds`` for that policy (``--seeds-for D=0,1``): a study can hold
+    # the seeds that have finished for each policy without training the missing ones of the others.
+    seeds_for: tuple[tuple[str, tuple[int, ...]], ...] = ()
     timesteps: int | None = None  # None: each policy's budget in the training config
     trials: int = 200  # evaluation trials per environment and seed
     validation_trials: int = 100  # per seed, in the training condition: picks the seed to ship
@@ -79,12 +82,25 @@ class StudyConfig:
     address: str | None = None
     ship_best: bool = False  # ship each policy's best-by-validation seed, and publish every seed (publish())
 
+    def seeds_of(self, policy: str) -> tuple[int, ...]:
+        """The training seeds of one policy in this grid."""
+        return dict(self.seeds_for).get(policy, self.seeds)
+
+    def grid(self) -> list[tuple[str, int]]:
+        """Every (policy, seed) of the study."""
+        return [(p, s) for p in self.policies for s in self.seeds_of(p)]
+
     def check(self) -> None:
         bad = [p for p in self.policies if p not in POLICY_NAMES]
         if bad or not self.policies:
             raise ConfigError(f"unknown policy {bad[0] if bad else ''!r}; valid: {', '.join(POLICY_NAMES)}")
-        if not self.seeds or min(self.seeds) < 0 or len(set(self.seeds)) != len(self.seeds):
-            raise ConfigError(f"seeds must be distinct whole numbers >= 0, got {list(self.seeds)}")
+        stray = [p for p, _ in self.seeds_for if p not in self.policies]
+        if stray:
+            raise ConfigError(f"--seeds-for names policy {stray[0]!r}, which is not in --policies "
+                              f"{','.join(self.policies)}: add it there or drop its seeds")
+        for seeds in (self.seeds, *(s for _, s in self.seeds_for)):
+            if not seeds or min(seeds) < 0 or len(set(seeds)) != len(seeds):
+                raise ConfigError(f"seeds must be distinct whole numbers >= 0, got {list(seeds)}")
         if self.trials < 1 or self.validation_trials < 1 or (self.timesteps is not None and self.timesteps < 1):
             raise ConfigError("--trials, --validation-trials and --timesteps must be >= 1")
         if self.cpus_per_trial <= 0 or self.gpus_per_trial < 0:
@@ -157,7 +173,7 @@ def publish(cfg: StudyConfig) -> None:
     models/policies/<P>/seeds/seed<N>/ (model without optimizer moments, normalisation, meta, config)."""
     best = best_seeds(cfg)
     for p in cfg.policies:
-        for seed in cfg.seeds:
+        for seed in cfg.seeds_of(p):
             run = run_folder(cfg, p, seed)
             dest = artifacts.ship(run, p, seed_folder(p, seed))
             for name in ("evaluations.csv", *(per_stomach(f, fid) for f in (RESULTS_FILE, VALIDATION_FILE)
@@ -250,7 +266,7 @@ def best_seeds(cfg: StudyConfig) -> dict[str, tuple[int, dict]]:
     """Per policy, the seed with the best validation success rate (then the smaller error)."""
     best = {}
     for p in cfg.policies:
-        scored = [(s, validate(cfg, p, run_folder(cfg, p, s))) for s in cfg.seeds]
+        scored = [(s, validate(cfg, p, run_folder(cfg, p, s))) for s in cfg.seeds_of(p)]
         best[p] = max(scored, key=lambda sv: (sv[1]["success_rate"], -sv[1]["mean_final_mm"]))
     return best
 
@@ -321,7 +337,7 @@ def run_grid(cfg: StudyConfig) -> list[dict]:
     connect(cfg.address)  # first: without Ray it says how to install it
     import ray
 
-    grid = [(p, s) for p in cfg.policies for s in cfg.seeds]
+    grid = cfg.grid()
     for p, s in grid:
         if adopt_shipped(cfg, p, s):
             print(f"{p} seed {s}: the shipped policy is this run (same seed, task and budget): not retrained")
@@ -482,8 +498,9 @@ def write_outputs(cfg: StudyConfig, rows: list[dict], command: str, wall_s: floa
     lines = [
         "# mjendo study: the paper's comparisons over training seeds", "",
         f"Command: `{command}`  ",
-        f"Wall time {wall_s / 60:.1f} min. Policies {', '.join(cfg.policies)}, training seeds "
-        f"{', '.join(map(str, cfg.seeds))}, {cfg.trials} evaluation trials (80 steps, seeds 0-{cfg.trials - 1}) per "
+        f"Wall time {wall_s / 60:.1f} min. Training seeds "
+        f"{'; '.join(p + ' ' + ', '.join(map(str, cfg.seeds_of(p))) for p in cfg.policies)}, {cfg.trials} "
+        f"evaluation trials (80 steps, seeds 0-{cfg.trials - 1}) per "
         f"environment and seed, evaluated in the {cfg.fidelity} stomach.", "",
         "SR: mean over seeds of each seed's success rate; 95 % interval from a stratified bootstrap over seeds and "
         "trials (mjendo/stats.py). Error: final tip error over all trials (mm).", "",
@@ -522,7 +539,7 @@ def write_outputs(cfg: StudyConfig, rows: list[dict], command: str, wall_s: floa
               f"{VALIDATION_SEED}.. (disjoint from the evaluation trials above).", "",
               "| policy | seed | validation SR % | final error mm | best |", "|---|---|---|---|---|"]
     for p in cfg.policies:
-        for seed in cfg.seeds:
+        for seed in cfg.seeds_of(p):
             v = validate(cfg, p, run_folder(cfg, p, seed))
             mark = ("shipped" if cfg.ship_best else "yes") if best[p][0] == seed else ""
             lines.append(f"| {p} | {seed} | {100 * v['success_rate']:.1f} | {v['mean_final_mm']:.1f} | {mark} |")
@@ -554,11 +571,21 @@ def _ints(text: str) -> tuple[int, ...]:
         raise argparse.ArgumentTypeError(f"expected comma-separated whole numbers, got {text!r}") from None
 
 
+def _policy_seeds(text: str) -> tuple[str, tuple[int, ...]]:
+    policy, sep, seeds = text.partition("=")
+    if not sep or policy not in POLICY_NAMES:
+        raise argparse.ArgumentTypeError(f"expected POLICY=SEEDS such as D=0,1 (policy one of "
+                                         f"{', '.join(POLICY_NAMES)}), got {text!r}")
+    return policy, _ints(seeds)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m mjendo.study", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--policies", default="D,E", help="comma-separated, A-E (default D,E)")
     ap.add_argument("--seeds", type=_ints, default=(0, 1, 2), help="comma-separated training seeds (default 0,1,2)")
+    ap.add_argument("--seeds-for", type=_policy_seeds, action="append", default=[], metavar="P=SEEDS",
+                    help="one policy's own seeds, e.g. D=0,1 (repeatable; the others use --seeds)")
     ap.add_argument("--timesteps", type=int, help="training budget per run (default: the config's)")
     ap.add_argument("--trials", type=int, default=200, help="evaluation trials per environment and seed")
     ap.add_argument("--validation-trials", type=int, default=100,
@@ -575,7 +602,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="copy each policy's best-by-validation seed to models/policies/<P>/ and every seed, "
                          "with its study trials, to models/policies/<P>/seeds/seed<N>/")
     a = ap.parse_args(argv)
-    cfg = StudyConfig(policies=tuple(a.policies.split(",")), seeds=a.seeds, timesteps=a.timesteps,
+    cfg = StudyConfig(policies=tuple(a.policies.split(",")), seeds=a.seeds, seeds_for=tuple(a.seeds_for),
+                      timesteps=a.timesteps,
                       trials=a.trials, validation_trials=a.validation_trials, fidelity=a.fidelity,
                       envs=tuple(a.envs.split(",")) if a.envs else None, config=a.config, runs=a.runs, out=a.out,
                       cpus_per_trial=a.cpus_per_trial, gpus_per_trial=a.gpus_per_trial, address=a.address,

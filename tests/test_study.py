@@ -203,6 +203,23 @@ def test_seeds_that_are_not_numbers_are_a_usage_error(capsys):
     assert exit_.value.code == 2 and "expected comma-separated whole numbers, got 'a,b'" in capsys.readouterr().err
 
 
+def test_each_policy_can_hold_its_own_seeds(capsys):
+    # A study of D's two finished seeds beside E's three must not train D seed 2 to fill a rectangle.
+    from mjendo.config import ConfigError
+    from mjendo.study import StudyConfig, main
+
+    cfg = StudyConfig(policies=("D", "E"), seeds=(0, 1, 2), seeds_for=(("D", (0, 1)),))
+    cfg.check()
+    assert cfg.grid() == [("D", 0), ("D", 1), ("E", 0), ("E", 1), ("E", 2)]
+    with pytest.raises(ConfigError, match="names policy 'C', which is not in --policies D,E"):
+        StudyConfig(seeds_for=(("C", (0,)),)).check()
+    with pytest.raises(ConfigError, match="distinct"):
+        StudyConfig(seeds_for=(("D", (3, 3)),)).check()
+    with pytest.raises(SystemExit) as exit_:
+        main(["--seeds-for", "D:0,1"])
+    assert exit_.value.code == 2 and "expected POLICY=SEEDS such as D=0,1" in capsys.readouterr().err
+
+
 def test_a_study_without_ray_says_how_to_install_it(monkeypatch, capsys, tmp_path):
     from mjendo.study import main
 

@@ -406,10 +406,12 @@ def _over_targets(a: dict[int, list[dict]], b: dict[int, list[dict]], rng) -> tu
     targets once for both policies and each policy's seeds independently (stats.crossed).
     """
     def table(by_seed: dict[int, list[dict]], targets: list) -> np.ndarray:
-        return np.array([[np.mean([_bool(t["success"]) for t in by_seed[s] if t["target"] == k] or [np.nan])
+        return np.array([[np.mean([_bool(t["success"]) for t in by_seed[s] if int(t["target"]) == k] or [np.nan])
                           for k in targets] for s in sorted(by_seed)])
 
-    common = sorted({t["target"] for ts in a.values() for t in ts} & {t["target"] for ts in b.values() for t in ts})
+    # Cached rows come from CSV (strings), fresh ones from the evaluation (ints): compare as ints.
+    common = sorted({int(t["target"]) for ts in a.values() for t in ts}
+                    & {int(t["target"]) for ts in b.values() for t in ts})
     ta, tb = table(a, common), table(b, common)
     keep = ~(np.isnan(ta).any(0) | np.isnan(tb).any(0))  # targets every seed of both was tried on
     if not keep.any():

@@ -3,7 +3,7 @@
 Each (policy, seed) of the grid is one Ray task that trains the policy (or
 resumes its run folder ``runs/<P>/seed<N>/`` from the last checkpoint, or
 skips training when the run is finished) and then evaluates the final
-policy in every environment of the study, writing ``study_trials.csv``
+policy in every environment of the study, writing ``study_trials.csv.gz``
 into the run folder. A finished trial is not run again: killing the study
 and running the same command resumes where it stopped. Tasks declare their
 resources (``--cpus-per-trial``, ``--gpus-per-trial``); ``ray.init()``
@@ -22,7 +22,6 @@ E - A as differences with intervals. Writes ``summary.csv``,
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import os
 import shutil
@@ -37,10 +36,10 @@ import numpy as np
 from mjendo import artifacts, cli, paths, scene, stats, targets
 from mjendo.artifacts import PolicyError
 from mjendo.config import CONDITIONS, FIDELITIES, POLICY_NAMES, ConfigError, TaskConfig, task_config
-from mjendo.evaluation import EVAL_SEED_BASE, cells, run_trials
+from mjendo.evaluation import EVAL_SEED_BASE, cells, read_table, run_trials, write_table
 from mjendo.train_config import load as load_config
 
-RESULTS_FILE = "study_trials.csv"
+RESULTS_FILE = "study_trials.csv.gz"  # compressed (4x): every published seed carries its trials in git
 VALIDATION_FILE = "study_validation.json"
 
 
@@ -49,7 +48,7 @@ def per_stomach(name: str, fidelity: str) -> str:
 
     So a full-stomach study keeps its own cache and never overwrites the fast one's.
     """
-    stem, ext = name.rsplit(".", 1)
+    stem, ext = name.split(".", 1)
     return name if fidelity == "fast" else f"{stem}_{fidelity}.{ext}"
 
 
@@ -192,8 +191,7 @@ def _read_results(run: Path, cfg: StudyConfig) -> list[dict] | None:
     path = run / per_stomach(RESULTS_FILE, cfg.fidelity)
     if not path.exists():
         return None
-    with open(path) as f:
-        rows = list(csv.DictReader(f))
+    rows = read_table(path)
     envs = {r["env"] for r in rows}
     want = {e for _, e in _cells(cfg, rows[0]["controller"] if rows else "")}
     model = task_key(cfg)
@@ -235,7 +233,7 @@ def trial(cfg: StudyConfig, policy: str, seed: int) -> list[dict]:
             trials, _ = run_trials(str(run), env, eval_seeds(cfg), fidelity=cfg.fidelity)
             rows += [{**asdict(t), "controller": policy, "seed_trained": seed, "fidelity": cfg.fidelity,
                       "model": model} for t in trials]
-        _write_rows(run / per_stomach(RESULTS_FILE, cfg.fidelity), rows)
+        write_table(run / per_stomach(RESULTS_FILE, cfg.fidelity), rows)
         validate(cfg, policy, run)
         return rows
     finally:
@@ -269,15 +267,6 @@ def best_seeds(cfg: StudyConfig) -> dict[str, tuple[int, dict]]:
         scored = [(s, validate(cfg, p, run_folder(cfg, p, s))) for s in cfg.seeds_of(p)]
         best[p] = max(scored, key=lambda sv: (sv[1]["success_rate"], -sv[1]["mean_final_mm"]))
     return best
-
-
-def _write_rows(path: Path, rows: list[dict]) -> None:
-    tmp = path.with_suffix(".tmp")
-    with open(tmp, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
-    os.replace(tmp, path)
 
 
 # ------------------------------------------------------------------ Ray
@@ -470,7 +459,7 @@ def _bool(x) -> bool:
 
 def _csv(path: Path, rows: list[dict]) -> None:
     if rows:
-        _write_rows(path, rows)
+        write_table(path, rows)
 
 
 def write_outputs(cfg: StudyConfig, rows: list[dict], command: str, wall_s: float) -> Path:

@@ -1,6 +1,5 @@
 """Evaluation: metrics on constructed trials, and a short real evaluation producing every output."""
 
-import csv
 import math
 
 import numpy as np
@@ -8,7 +7,7 @@ import pytest
 
 from mjendo import figures
 from mjendo.config import ConfigError
-from mjendo.evaluation import Trial, evaluate, summarize, wilson
+from mjendo.evaluation import Trial, evaluate, read_table, summarize, wilson
 
 
 def trial(ok, final, exited=False, peak=1.0):
@@ -31,8 +30,7 @@ def test_metrics_on_constructed_trials():
 def test_short_evaluation_writes_tables_and_figures(tmp_path, monkeypatch):
     monkeypatch.setenv("MJENDO_POLICIES", str(tmp_path / "no_policies_here"))
     res = evaluate(trials=2, controllers=("baseline", "C"), workers=1, out=tmp_path, command="test")
-    with open(tmp_path / "trials.csv") as f:
-        rows = list(csv.DictReader(f))
+    rows = read_table(tmp_path / "trials.csv.gz")
     assert len(rows) == 2 * 8
     base = [r for r in rows if r["controller"] == "baseline"]
     assert all(float(r["final_mm"]) >= 0 and int(r["steps"]) <= 80 for r in base)

@@ -83,7 +83,7 @@ def _tiny_grid_checks(cfg, tiny_config, tmp_path, monkeypatch):
     for r in rows:
         assert float(r["sr_low"]) <= float(r["sr"]) <= float(r["sr_high"])
     for seed in (1, 2):
-        assert (out / "seeds" / f"D_seed{seed}" / "study_trials.csv").exists()
+        assert (out / "seeds" / f"D_seed{seed}" / "study_trials.csv.gz").exists()
         assert (out / "seeds" / f"D_seed{seed}" / "meta.json").exists()
     assert (out / "seeds.png").stat().st_size > 5000 and "seeds.png" in (out / "report.md").read_text()
     assert (out / "curves.png").stat().st_size > 5000 and "curves.png" in (out / "report.md").read_text()
@@ -101,9 +101,9 @@ def _tiny_grid_checks(cfg, tiny_config, tmp_path, monkeypatch):
     assert best_seed in (1, 2) and best["trials"] == cfg.validation_trials == 4 and best["env"] == "DE"
     assert f"| D | {best_seed} |" in (out / "report.md").read_text()
     # Finished trials are skipped when the study runs again: nothing is trained or evaluated again.
-    before = (tmp_path / "runs" / "D" / "seed1" / "study_trials.csv").stat().st_mtime_ns
+    before = (tmp_path / "runs" / "D" / "seed1" / "study_trials.csv.gz").stat().st_mtime_ns
     study(cfg, command="test again")
-    assert (tmp_path / "runs" / "D" / "seed1" / "study_trials.csv").stat().st_mtime_ns == before
+    assert (tmp_path / "runs" / "D" / "seed1" / "study_trials.csv.gz").stat().st_mtime_ns == before
     # ... unless the scene files or the target lists changed since: then they are evaluated again.
     from mjendo import scene
     from mjendo.study import _read_results
@@ -119,7 +119,7 @@ def _tiny_grid_checks(cfg, tiny_config, tmp_path, monkeypatch):
                          envs=("DE", "UE1"), config=tiny_config, runs=tmp_path / "runs", out=tmp_path / "study_broken")
     with pytest.raises(ConfigError, match=r"D seed 4 failed: checkpoint .*model_128.zip.* is unreadable"):
         study(broken, command="test broken")
-    assert (tmp_path / "runs" / "D" / "seed1" / "study_trials.csv").stat().st_mtime_ns == before
+    assert (tmp_path / "runs" / "D" / "seed1" / "study_trials.csv.gz").stat().st_mtime_ns == before
     from mjendo import targets
 
     monkeypatch.setattr(targets, "fingerprint", lambda version=None: "other lists")  # the lists drawn again
@@ -173,9 +173,9 @@ def test_each_stomach_keeps_its_own_study_cache():
     # A full-stomach study once overwrote the fast study's trial files in the same run folders.
     from mjendo.study import RESULTS_FILE, VALIDATION_FILE, per_stomach
 
-    assert per_stomach(RESULTS_FILE, "fast") == "study_trials.csv"
+    assert per_stomach(RESULTS_FILE, "fast") == "study_trials.csv.gz"
     names = {per_stomach(f, fid) for f in (RESULTS_FILE, VALIDATION_FILE) for fid in ("fast", "full")}
-    assert len(names) == 4 and "study_trials_full.csv" in names
+    assert len(names) == 4 and "study_trials_full.csv.gz" in names
 
 
 def test_comparisons_resample_seeds_and_targets():

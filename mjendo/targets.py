@@ -356,6 +356,27 @@ def classify(free_mm: np.ndarray, wall_mm: np.ndarray, phase_mm: np.ndarray) -> 
     return cls
 
 
+def replay_demo(task, demo: tuple, point: int, start: int | None) -> tuple[int | None, float]:
+    """Run demonstrator ``demo`` for one trial towards ``point`` from start state ``start`` (None: the only one):
+    the step (1-80) at which it first comes within the success distance (None: never) and its closest approach
+    (mm) within the trial."""
+    task.reset(np.random.default_rng(0), start)
+    task.set_target(point)
+    first, closest = None, np.inf
+    for k in range(TRIAL_STEPS):
+        task.step(demo_action(demo, k))
+        closest = min(closest, task.distance_mm())
+        if first is None and closest < PAPER_SUCCESS_MM:
+            first = k + 1
+    return first, closest
+
+
+def _listed_aided(list_name: str, path: Path) -> tuple[dict, list[int]]:
+    meta = json.loads(Path(path).read_text())
+    points = {p["id"]: p for p in meta["points"]}
+    return points, [i for i in meta["lists"][list_name] if points[i]["class"] == "contact_aided"]
+
+
 def arrival_steps(list_name: str, path: Path = TARGETS_FILE) -> dict[int, list[int | None]]:
     """Step (1-80) at which each listed contact-aided point's recorded demonstrator first comes within the
     success distance, in SE and from each DE load phase (None: not within the trial). The recorded one is
@@ -363,25 +384,42 @@ def arrival_steps(list_name: str, path: Path = TARGETS_FILE) -> dict[int, list[i
     way there needs, so on how little slack a policy has."""
     from mjendo.task import NavigationTask
 
-    meta = json.loads(Path(path).read_text())
-    points = {p["id"]: p for p in meta["points"]}
-    listed = [i for i in meta["lists"][list_name] if points[i]["class"] == "contact_aided"]
+    points, listed = _listed_aided(list_name, path)
     steps: dict[int, list[int | None]] = {i: [] for i in listed}
-    rng = np.random.default_rng(0)
     for run, (env, phase) in enumerate([("SE", None)] + [("DE", p) for p in range(PHASES)]):
         task = NavigationTask(env=env, target_list=list_name, max_steps=10**6, randomize_phase=False)
         start = None if phase is None else phase * len(task.start_states) // PHASES
         for i in listed:
-            task.reset(rng, start)
-            task.set_target(i)
-            first = None
-            for k in range(TRIAL_STEPS):
-                task.step(demo_action(DEMOS[points[i]["demos"][run]], k))
-                if task.distance_mm() < PAPER_SUCCESS_MM:
-                    first = k + 1
-                    break
-            steps[i].append(first)
+            steps[i].append(replay_demo(task, DEMOS[points[i]["demos"][run]], i, start)[0])
     return steps
+
+
+def open_loop(list_name: str, env: str = "DE", phases: int = 8, hold_load: bool = False,
+              path: Path = TARGETS_FILE) -> np.ndarray:
+    """Closest approach (mm) within a trial of each listed contact-aided point's static-stomach demonstrator
+    (the one the map recorded for SE, which reaches it there), replayed unchanged from ``phases`` evenly
+    spaced phases of ``env``'s load; shape (points, phases). Where the moving wall spoils a plan that works in
+    the still stomach, a policy has to adapt: closing the loop is part of the task. ``hold_load`` keeps the
+    load at its value at the start for the whole trial (the wall placed as at that phase, but not moving
+    during the trial), which separates the wall's motion within a trial from where the load has put it."""
+    from mjendo.sim import square_wave
+    from mjendo.task import NavigationTask
+
+    points, listed = _listed_aided(list_name, path)
+    task = NavigationTask(env=env, target_list=list_name, max_steps=10**6, randomize_phase=False)
+    sim, n = task.sim, len(task.start_states)
+    if n == 1 or not 1 <= phases <= n:
+        raise ConfigError(f"{env} has {n} start phase(s): open-loop replays need a periodic load (DE, UE1, UE2) "
+                          f"and 1 to {n} phases")
+    closest = np.empty((len(listed), phases))
+    for k in range(phases):
+        start = k * n // phases
+        if hold_load:  # an integration state starts with its time: the load's sign at the start, held
+            sim.set_load(np.sign(square_wave(task.start_states[start][0], 1.0, sim.half_period)), np.inf)
+        for j, i in enumerate(listed):
+            closest[j, k] = replay_demo(task, DEMOS[points[i]["demos"][0]], i, start)[1]
+        sim.set_load()
+    return closest
 
 
 def spread(points: np.ndarray, order: np.ndarray, spacing: float) -> list[int]:
@@ -546,6 +584,13 @@ def main(argv: list[str] | None = None) -> int:
     f.add_argument("--out", type=Path, default=paths.DATA / "docs" / "media" / "targets.png")
     sl = sub.add_parser("slack", help="the step at which each listed contact-aided target's demonstrator arrives")
     sl.add_argument("--list", default="A", choices=("A", "B"))
+    ol = sub.add_parser("open-loop", help="each listed contact-aided target's static-stomach demonstrator replayed "
+                        "unchanged from phases of the moving stomach: does the plan survive the wall's motion")
+    ol.add_argument("--list", default="A", choices=("A", "B"))
+    ol.add_argument("--env", default="DE", choices=("DE", "UE1", "UE2"))
+    ol.add_argument("--phases", type=int, default=8, help="start phases, evenly spaced over the load cycle")
+    ol.add_argument("--hold-load", action="store_true", help="hold the load at its value at the start: the wall "
+                    "placed as at that phase but not moving during the trial")
     d = sub.add_parser("lists", help="draw lists F, A and B again from the map's measured classes (no simulation)")
     d.add_argument("--seed", type=int, default=0)
     d.add_argument("--out", type=Path, default=TARGETS_FILE)
@@ -562,6 +607,16 @@ def main(argv: list[str] | None = None) -> int:
                   f"the {PHASES} DE phases) by step {TRIAL_STEPS} at {len(arrived)}; median step "
                   f"{np.median(arrived):.0f}, quartiles {np.percentile(arrived, 25):.0f}-"
                   f"{np.percentile(arrived, 75):.0f}, after step 70 at {np.mean(arrived > 70):.0%}")
+            return
+        if args.cmd == "open-loop":
+            closest = open_loop(args.list, args.env, args.phases, args.hold_load)
+            hit = closest < PAPER_SUCCESS_MM
+            held = " (load held at its start value)" if args.hold_load else ""
+            print(f"list {args.list}, {args.env}{held}: {len(closest)} contact-aided targets, each reached in SE by "
+                  f"its recorded demonstrator; replayed unchanged from {args.phases} load phases it comes within "
+                  f"{PAPER_SUCCESS_MM:g} mm in {hit.mean():.1%} of the {hit.size} trials (every phase: "
+                  f"{hit.all(axis=1).mean():.1%} of the targets, none: {(~hit).all(axis=1).mean():.1%}); closest "
+                  f"approach median {np.median(closest):.2f} mm, 90th percentile {np.percentile(closest, 90):.2f} mm")
             return
         if args.cmd == "map" and isinstance(args.anatomy, str) and args.anatomy in ANATOMY_SETS:
             benchmark_maps(args.anatomy, args.episodes, args.seed, args.workers)

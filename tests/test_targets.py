@@ -144,3 +144,24 @@ def test_slack_replays_each_demonstrator_to_its_first_arrival(tmp_path):
     for point, per_run in steps.items():
         assert len(per_run) == 1 + targets.PHASES and None not in per_run, (point, per_run)
         assert 30 <= min(per_run) and max(per_run) <= targets.TRIAL_STEPS, (point, per_run)
+
+
+def test_open_loop_replays_the_static_plan_from_load_phases_of_the_moving_stomach(tmp_path):
+    # Two of list A's contact-aided targets, their SE demonstrator replayed unchanged from two opposite load
+    # phases of DE: the plan still heads for the target (within 15 mm), but the moving wall makes the two
+    # phases end differently, and holding the load at its start value (the wall placed, not moving) changes
+    # the outcome again; the static stomach has no phases to replay from.
+    from mjendo.config import ConfigError
+
+    meta = json.loads(targets.TARGETS_FILE.read_text())
+    meta["lists"]["A"] = aided("A")[:2]
+    path = tmp_path / "targets.json"
+    path.write_text(json.dumps(meta))
+    moving = targets.open_loop("A", "DE", phases=2, path=path)
+    held = targets.open_loop("A", "DE", phases=2, hold_load=True, path=path)
+    assert moving.shape == held.shape == (2, 2)
+    assert np.all(moving < 15.0) and np.all(held < 15.0), (moving, held)
+    assert np.all(np.abs(moving[:, 0] - moving[:, 1]) > 0.01), moving
+    assert np.any(np.abs(moving - held) > 0.01), (moving, held)
+    with pytest.raises(ConfigError, match="need a periodic load"):
+        targets.open_loop("A", "SE", phases=2, path=path)

@@ -13,7 +13,7 @@ connects to a running cluster.
 The analysis (:mod:`mjendo.stats`) gives per policy and environment the
 success rate with a 95 % interval over seeds and trials (stratified
 bootstrap), mean error and force, and the paper's comparisons C - B, E - D,
-E - A as differences with intervals. Writes ``summary.csv``,
+E - C, D - B, E - A as differences with intervals. Writes ``summary.csv``,
 ``comparisons.csv``, ``report.md``, ``seeds.png`` and, per seed, its
 ``meta.json`` and trials, into ``--out`` (default ``runs/study``;
 ``eval/study`` is the committed study).
@@ -56,7 +56,9 @@ def per_stomach(name: str, fidelity: str) -> str:
 # own, disjoint from the evaluation trials (30,000,000+) and from training's periodic evaluations (10,000,000+).
 VALIDATION_SEED = 20_000_000
 RUNNING_MARK = ".study_running"
-COMPARISONS = (("C", "B"), ("E", "D"), ("E", "A"))  # paper: force sensing (SE, DE training) and contact use
+# The paper's questions: force sensing (C - B trained static, E - D trained moving), training in the moving
+# stomach (E - C with force sensing, D - B without) and contact use (E - A).
+COMPARISONS = (("C", "B"), ("E", "D"), ("E", "C"), ("D", "B"), ("E", "A"))
 
 
 @dataclass(frozen=True)

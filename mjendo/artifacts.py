@@ -36,6 +36,8 @@ NORM_FILE = "vecnormalize.pkl"
 META_FILE = "meta.json"
 CONFIG_FILE = "config.yaml"
 LOG_FILES = ("episodes.csv", "evaluations.csv", "curve.png")
+SAME_RUN = ("seed", "timesteps", "wall_s", "commit")  # meta fields that tell one finished run from another
+SEEDS_DIR = "seeds"  # models/policies/<P>/seeds/seed<N>/: every published training seed of a shipped policy
 FORMAT = 2  # meta.json layout: 2 = with "task" and "observation"
 
 
@@ -162,12 +164,23 @@ def _load_norm(path: Path, n_obs: int):
     return vn
 
 
+def model_home(directory: Path) -> Path:
+    """The folder holding a policy's model.zip and vecnormalize.pkl: the folder itself, or for the shipped
+    seed's published folder (``<P>/seeds/seed<N>/``, kept without them) the shipped policy: one copy in git."""
+    directory = Path(directory)
+    shipped = directory.parent.parent
+    if (directory / MODEL_FILE).exists() or directory.parent.name != SEEDS_DIR or not (shipped / MODEL_FILE).exists():
+        return directory
+    ours, theirs = read_meta(directory), read_meta(shipped)
+    return shipped if all(ours.get(k) == theirs.get(k) for k in SAME_RUN) else directory
+
+
 def load(directory: Path) -> Policy:
     """Load and check a policy folder; every problem is one PolicyError naming the file and the fix."""
     from stable_baselines3 import PPO
 
     directory = Path(directory)
-    path = directory / MODEL_FILE
+    path = model_home(directory) / MODEL_FILE
     if not path.exists():
         raise PolicyError(f"no policy file at {path}: train one with `make train POLICY=...`, pass a folder "
                           "holding model.zip, or use task version 0's shipped ones (models/policies/v0/<P>)")
@@ -182,7 +195,7 @@ def load(directory: Path) -> Policy:
         raise PolicyError(f"{directory / META_FILE} describes {sum(int(b['size']) for b in layout)} observations but "
                           f"{path} takes {n_obs}: meta.json belongs to another run; restore it from the run folder")
     _warn_scene(directory, meta)
-    norm = directory / NORM_FILE
+    norm = path.parent / NORM_FILE
     vn = _load_norm(norm, n_obs) if norm.exists() else None
     return Policy(directory, model, vn.obs_rms if vn else None, float(vn.clip_obs) if vn else 10.0,
                   float(vn.epsilon) if vn else 1e-8, meta)

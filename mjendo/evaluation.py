@@ -82,7 +82,7 @@ def check_controllers(controllers) -> None:
         if c not in CONTROLLERS and not (Path(c).is_dir() or Path(c).suffix == ".zip"):
             raise ConfigError(f"unknown policy {c!r}; valid: {', '.join(CONTROLLERS)}, or a policy folder "
                               "with model.zip (e.g. runs/E/seed0)")
-        if c not in CONTROLLERS and not (artifacts.resolve(c) / artifacts.MODEL_FILE).exists():
+        if c not in CONTROLLERS and not (artifacts.model_home(artifacts.resolve(c)) / artifacts.MODEL_FILE).exists():
             raise ConfigError(f"{c} holds no {artifacts.MODEL_FILE}: pass a finished run or policy folder")
 
 

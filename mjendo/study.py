@@ -126,8 +126,9 @@ def finished(run: Path, budget: int) -> bool:
 
 
 def seed_folder(policy: str, seed: int) -> Path:
-    """Where a published study seed lives: its policy files and its study trials (``--ship-best``)."""
-    return paths.policies_dir() / policy / "seeds" / f"seed{seed}"
+    """Where a published study seed lives: its policy files and its study trials (``--ship-best``); the
+    shipped seed's model files are those of the shipped policy (artifacts.model_home)."""
+    return paths.policies_dir() / policy / artifacts.SEEDS_DIR / f"seed{seed}"
 
 
 def _same_task(meta: dict, task: TaskConfig) -> bool:
@@ -162,8 +163,10 @@ def adopt_shipped(cfg: StudyConfig, policy: str, seed: int) -> bool:
         for name in (artifacts.META_FILE, artifacts.CONFIG_FILE, artifacts.MODEL_FILE, artifacts.NORM_FILE,
                      *artifacts.LOG_FILES, *(per_stomach(f, fid) for f in (RESULTS_FILE, VALIDATION_FILE)
                                              for fid in FIDELITIES)):
-            if (source / name).exists():
-                shutil.copy2(source / name, run / name)
+            model_file = name in (artifacts.MODEL_FILE, artifacts.NORM_FILE)
+            found = (artifacts.model_home(source) if model_file else source) / name
+            if found.exists():
+                shutil.copy2(found, run / name)
         (run / "ADOPTED").write_text(f"copied from {source} by mjendo.study: that policy is this seed's run\n")
         return True
     return False
@@ -171,7 +174,8 @@ def adopt_shipped(cfg: StudyConfig, policy: str, seed: int) -> bool:
 
 def publish(cfg: StudyConfig) -> None:
     """Ship each policy's best seed to models/policies/<P>/ and every seed, with its study trials, to
-    models/policies/<P>/seeds/seed<N>/ (model without optimizer moments, normalisation, meta, config)."""
+    models/policies/<P>/seeds/seed<N>/ (model without optimizer moments, normalisation, meta, config;
+    the shipped seed's folder without model and normalisation, which are the shipped policy's)."""
     best = best_seeds(cfg)
     for p in cfg.policies:
         for seed in cfg.seeds_of(p):
@@ -182,6 +186,8 @@ def publish(cfg: StudyConfig) -> None:
                 if (run / name).exists():
                     shutil.copy2(run / name, dest / name)
         artifacts.ship(run_folder(cfg, p, best[p][0]), p)
+        for name in (artifacts.MODEL_FILE, artifacts.NORM_FILE):  # in git once: artifacts.model_home finds them
+            (seed_folder(p, best[p][0]) / name).unlink(missing_ok=True)
 
 
 def eval_seeds(cfg: StudyConfig) -> list[int]:

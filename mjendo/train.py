@@ -26,7 +26,7 @@ import numpy as np
 import yaml
 
 from mjendo import artifacts, cli, paths, targets
-from mjendo.artifacts import MODEL_FILE, NORM_FILE, PolicyError
+from mjendo.artifacts import MODEL_FILE, NORM_FILE, PolicyError, model_home
 from mjendo.config import FIDELITIES, PAPER_EVAL_STEPS, ConfigError, default_target_list
 from mjendo.sampling import TargetSampler
 from mjendo.train_config import TrainConfig, from_dict
@@ -258,7 +258,7 @@ def _start_from(cfg: TrainConfig, venv):
     from stable_baselines3 import PPO
     from stable_baselines3.common.vec_env import VecNormalize
 
-    src = Path(cfg.init_from)
+    src = model_home(Path(cfg.init_from))
     if not (src / MODEL_FILE).exists():
         raise ConfigError(f"--init-from {src} holds no {MODEL_FILE}; give a policy folder such as "
                           "models/policies/E or a finished run folder")

@@ -272,3 +272,30 @@ def test_a_published_seed_is_adopted_with_its_study_trials(tmp_path, monkeypatch
     assert not adopt_shipped(cfg, "A", 0)  # the run exists now: never overwritten
     # Another seed's files are not this seed's run.
     assert not adopt_shipped(StudyConfig(policies=("A",), seeds=(1,), runs=tmp_path / "runs"), "A", 1)
+
+
+def test_the_shipped_seed_is_in_git_once(tmp_path, monkeypatch):
+    # The shipped seed's published folder holds no model.zip or vecnormalize.pkl (they are the shipped
+    # policy's): loading it, and adopting it as the study's run, take them from models/policies/<P>/.
+    from mjendo import artifacts, paths
+    from mjendo.study import StudyConfig, adopt_shipped, run_folder, seed_folder
+
+    policies = tmp_path / "policies"
+    monkeypatch.setenv("MJENDO_POLICIES", str(policies))
+    shutil.copytree(paths.MODELS / "policies" / "A", policies / "A", ignore=shutil.ignore_patterns("seeds"))
+    published = seed_folder("A", 0)
+    published.mkdir(parents=True)
+    shutil.copy2(policies / "A" / artifacts.META_FILE, published / artifacts.META_FILE)
+    assert artifacts.model_home(published) == policies / "A"
+    assert artifacts.load(published).meta["seed"] == 0
+    cfg = StudyConfig(policies=("A",), seeds=(0,), runs=tmp_path / "runs")
+    assert adopt_shipped(cfg, "A", 0)
+    run = run_folder(cfg, "A", 0)
+    for name in (artifacts.MODEL_FILE, artifacts.NORM_FILE):
+        assert (run / name).read_bytes() == (policies / "A" / name).read_bytes()
+    # A seed folder whose meta names another run is not the shipped policy's: its missing model stays missing.
+    meta = artifacts.read_meta(published)
+    artifacts.write_meta(published, {**meta, "wall_s": meta["wall_s"] + 1.0})
+    assert artifacts.model_home(published) == published
+    with pytest.raises(artifacts.PolicyError, match="no policy file"):
+        artifacts.load(published)

@@ -215,7 +215,7 @@ class NavigationTask:
         self.target_p = None if np.all(w == w[0]) else w / w.sum()
 
     def set_target(self, index: int) -> np.ndarray:
-        """Aim at another vertex of the list (e.g. to replay a chosen target); returns the observation."""
+        """Aim at another target of the list (its id; e.g. to replay a chosen target); returns the observation."""
         if index not in set(self.targets.tolist()):
             raise ValueError(f"target {index} is not in target list {self.target_list}: {self.targets.tolist()}")
         self.target = int(index)

@@ -281,7 +281,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--height", type=int, default=480)
     ap.add_argument("--fps", type=int, default=30)
     ap.add_argument("--steps", type=int, default=80, help="steps per episode (paper's trials: 80)")
-    ap.add_argument("--target", type=int, help="a target vertex index from the env's list")
+    ap.add_argument("--target", type=int,
+                    help="a target id of the env's list (targets.json's point id; version 0: a lumen vertex)")
     ap.add_argument("--fidelity", choices=list(FIDELITIES), default="fast", help="stomach to show")
     a = ap.parse_args(argv)
     if a.headless and not a.record:

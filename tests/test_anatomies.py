@@ -145,3 +145,15 @@ def test_the_evaluation_spreads_trials_over_a_set_of_stomachs(cache, monkeypatch
     assert all(t.error == "" and t.final_mm >= 0 and t.steps >= 1 for t in trials)
     rows = per_target(trials)  # a target id of one stomach is not the same target in another
     assert {(r["anatomy"], r["target"]) for r in rows} == {(t.anatomy, t.target) for t in trials}
+
+
+def test_the_committed_benchmark_stomachs_are_what_the_generator_builds(tmp_path):
+    # Each committed stomach's map indexes its mesh's triangles: a generator that changed would leave
+    # maps measured on other stomachs (measure them again: python -m mjendo.targets map --anatomy SEED).
+    committed = sorted(paths.ANATOMIES_DIR.glob("seed-*"))
+    assert committed, "no committed benchmark stomach"
+    for folder in committed:
+        built = tmp_path / folder.name
+        anatomy.save(anatomy.generate(int(folder.name.removeprefix("seed-"))), built)
+        for name in ("stomach.json", "stomach.msh"):
+            assert (built / name).read_bytes() == (folder / name).read_bytes(), f"{folder / name} is stale"

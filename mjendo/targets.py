@@ -27,6 +27,7 @@ out), A and B interleaved over the wall with about two thirds contact-aided. It 
 from __future__ import annotations
 
 import argparse
+import gzip
 import json
 import time
 from dataclasses import dataclass
@@ -80,8 +81,17 @@ class TargetTable:
 
 
 def map_path(stomach: Path) -> Path:
-    """The target map of a stomach's folder."""
-    return Path(stomach) / TARGETS_FILE.name
+    """The target map of a stomach's folder: targets.json, or the gzip-compressed targets.json.gz that the
+    benchmark's stomachs keep (thirty maps in git, 7x smaller)."""
+    plain = Path(stomach) / TARGETS_FILE.name
+    packed = plain.with_name(plain.name + ".gz")
+    return packed if packed.exists() and not plain.exists() else plain
+
+
+def read_map(path: Path) -> dict:
+    """The content of a map file, plain or gzip-compressed (by its suffix)."""
+    path = Path(path)
+    return json.loads(gzip.decompress(path.read_bytes()) if path.suffix == ".gz" else path.read_text())
 
 
 def load(version: int = CURRENT_VERSION, path: Path = TARGETS_FILE) -> TargetTable:
@@ -95,7 +105,7 @@ def load(version: int = CURRENT_VERSION, path: Path = TARGETS_FILE) -> TargetTab
     path = Path(path)
     if not path.exists():
         load_error(path)
-    meta = json.loads(path.read_text())
+    meta = read_map(path)
     pts = meta["points"]
     return TargetTable(np.array([p["id"] for p in pts], dtype=np.int64), np.array([p["tri"] for p in pts]),
                        np.array([p["bary"] for p in pts]), meta["lists"], meta["info"],
@@ -537,7 +547,11 @@ def figure(out: Path, path: Path = TARGETS_FILE) -> Path:
 
 
 def write_map(meta: dict, out: Path) -> None:
-    out.write_text(json.dumps(meta, indent=None, separators=(",", ":")).replace('{"id"', '\n{"id"') + "\n")
+    text = json.dumps(meta, indent=None, separators=(",", ":")).replace('{"id"', '\n{"id"') + "\n"
+    if Path(out).suffix == ".gz":
+        Path(out).write_bytes(gzip.compress(text.encode(), mtime=0))  # mtime 0: the same map, the same bytes
+    else:
+        Path(out).write_text(text)
 
 
 def benchmark_maps(name: str, episodes: int, seed: int, workers: int = 2) -> None:
@@ -554,7 +568,7 @@ def benchmark_maps(name: str, episodes: int, seed: int, workers: int = 2) -> Non
             anatomy.save(anatomy.generate(k), folder)
         t0 = time.time()
         meta = make_map(episodes, seed, progress=False, anatomy_id=k, workers=workers)
-        write_map(meta, map_path(folder))
+        write_map(meta, folder / f"{TARGETS_FILE.name}.gz")
         sizes = ", ".join(f"{n} {len(v)}" for n, v in meta["lists"].items())
         print(f"{folder}: {meta['info']['classes']}, lists {sizes} ({time.time() - t0:.0f} s)", flush=True)
 
@@ -625,7 +639,7 @@ def main(argv: list[str] | None = None) -> int:
             meta = make_map(args.episodes, args.seed, anatomy_id=args.anatomy, workers=args.workers)
             args.out = args.out or map_path(anatomy.stomach_dir(args.anatomy))
         else:
-            meta = redraw(json.loads(args.out.read_text()) if args.out.exists() else load_error(args.out), args.seed)
+            meta = redraw(read_map(args.out) if args.out.exists() else load_error(args.out), args.seed)
         write_map(meta, args.out)
         print(json.dumps(meta["info"], indent=1))
         print(f"wrote {args.out}: lists " + ", ".join(f"{k} {len(v)}" for k, v in meta["lists"].items()))

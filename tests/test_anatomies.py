@@ -157,3 +157,14 @@ def test_the_committed_benchmark_stomachs_are_what_the_generator_builds(tmp_path
         anatomy.save(anatomy.generate(int(folder.name.removeprefix("seed-"))), built)
         for name in ("stomach.json", "stomach.msh"):
             assert (built / name).read_bytes() == (folder / name).read_bytes(), f"{folder / name} is stale"
+        # Its map (gzip-compressed, as benchmark_maps writes it): lists A and B need the wall as the built-in
+        # stomach's do. A folder without one is a map still being measured (benchmark_maps resumes there).
+        path = targets.map_path(folder)
+        if not path.exists():
+            continue
+        assert path.name == "targets.json.gz", f"{path}: compress it (targets.write_map to targets.json.gz)"
+        free_mm = {p["id"]: p["free_mm"] for p in targets.read_map(path)["points"]}
+        table = targets.load(1, path)
+        for name in "AB":
+            far = np.mean([free_mm[i] >= targets.CONTACT_AIDED_MM for i in table.lists[name]])
+            assert len(table.lists[name]) >= 20 and far >= 0.6, (folder, name, len(table.lists[name]), far)

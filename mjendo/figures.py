@@ -212,17 +212,20 @@ def study_curves(runs: dict[str, list[Path]], out: Path) -> Path:
     plt = _plt()
     fig, ax = plt.subplots(figsize=(7.5, 3.8))
     for i, (policy, folders) in enumerate(runs.items()):
-        for k, folder in enumerate(folders):
+        labelled = False  # one legend entry per policy, on its first seed with evaluations
+        for folder in folders:
             ev = _read(Path(folder) / "evaluations.csv")
             if ev:
                 smooth = np.convolve(ev["success_rate"], np.ones(3) / 3, mode="valid") if len(ev["timesteps"]) > 3 \
                     else ev["success_rate"]
                 ax.plot(ev["timesteps"][len(ev["timesteps"]) - len(smooth):], 100 * smooth, color=f"C{i}",
-                        alpha=0.8, lw=1.2, label=policy if k == 0 else None)
+                        alpha=0.8, lw=1.2, label=None if labelled else policy)
+                labelled = True
     ax.set(xlabel="timesteps", ylabel="success rate % (40 trials, mean of 3)", ylim=(-2, 102),
            title="Periodic evaluation during training, every seed")
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
+    if ax.get_legend_handles_labels()[1]:  # a study of runs too short to evaluate has no curves to name
+        ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(out, dpi=120)
     plt.close(fig)

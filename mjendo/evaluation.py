@@ -15,7 +15,6 @@ import argparse
 import csv
 import gzip
 import io
-import json
 import math
 import os
 import subprocess
@@ -265,7 +264,7 @@ def target_classes() -> dict[int, str]:
     from mjendo import targets
 
     try:
-        return {p["id"]: p["class"] for p in json.loads(targets.TARGETS_FILE.read_text())["points"]}
+        return {p["id"]: p["class"] for p in targets.read_map(targets.TARGETS_FILE)["points"]}
     except OSError:
         return {}
 

@@ -85,11 +85,15 @@ def env_figure(env: str, fidelity: str, repeats: int, steps: int, version: int =
             "control_period_s": e.task.control_dt, "version": version}
 
 
-def episodes_figure(env: str, fidelity: str, steps: int, randomized: bool, seed: int) -> dict:
-    """env steps/s over whole training episodes (128 steps), resets included, with or without randomization."""
+def episodes_figure(env: str, fidelity: str, steps: int, randomized: str, seed: int) -> dict:
+    """env steps/s over whole training episodes (128 steps), resets included: the built-in stomach, randomized
+    tissue and load ('tissue'), or those drawn in one of the training anatomies per episode ('anatomy')."""
     from mjendo.envs import EndoscopeEnv
 
-    e = EndoscopeEnv(env, fidelity=fidelity, randomization=True if randomized else None)
+    e = EndoscopeEnv(env, fidelity=fidelity, randomization=True if randomized != "none" else None,
+                     anatomy="train" if randomized == "anatomy" else None)
+    for k in range(len(e.anatomies)):  # built once per stomach in a run (about 0.5 s each), not per episode
+        e.anatomy_task(k)
     rng = np.random.default_rng(seed)
     done, episode = 0, 0
     t0 = time.perf_counter()
@@ -262,7 +266,7 @@ def main(argv: list[str] | None = None) -> int:
                     "comma-separated (CG, Newton; default: each scene's own)")
     ap.add_argument("--solver", help=argparse.SUPPRESS)
     ap.add_argument("--seed", type=int, default=0, help=argparse.SUPPRESS)
-    ap.add_argument("--randomized", action="store_true", help=argparse.SUPPRESS)
+    ap.add_argument("--randomized", default="none", choices=["none", "tissue", "anatomy"], help=argparse.SUPPRESS)
     ap.add_argument("--vec-env", default="subproc", choices=["subproc", "dummy"])
     ap.add_argument("--n-envs", type=int, help="training figure: environments (default: policy E's config)")
     ap.add_argument("--env", default="DE")
@@ -296,18 +300,27 @@ def main(argv: list[str] | None = None) -> int:
                   flush=True)
     if args.only in (None, "randomization"):
         # Alternating repeats, each in a fresh process: a noisy spell on the machine hits both alike.
-        rates: dict[bool, list[float]] = {False: [], True: []}
+        labels = {"none": "built-in stomach", "tissue": "randomized tissue and load",
+                  "anatomy": "+ training anatomies"}
+        from mjendo import anatomy, targets
+
+        missing = [m for m in anatomy.members("train") if not targets.map_path(anatomy.stomach_dir(m)).exists()]
+        if missing:  # the anatomy row needs every training stomach's map
+            labels.pop("anatomy")
+            print(f"\n(no anatomy row: {len(missing)} training stomachs have no map yet; "
+                  "`python -m mjendo.targets map --anatomy train`)")
+        rates: dict[str, list[float]] = {k: [] for k in labels}
         for rep in range(args.repeats):
             for randomized in rates:
                 r = _run(["--figure", "episodes", "--env", args.env, "--fidelity", args.fidelity, "--steps",
-                          str(max(args.steps, 512)), "--seed", str(rep)] + (["--randomized"] if randomized else []))
+                          str(max(args.steps, 512)), "--seed", str(rep), "--randomized", randomized])
                 rates[randomized].append(r["env_steps_per_s"])
         print(f"\n{'whole episodes, ' + args.env + ' ' + args.fidelity:<30}{'env steps/s':>12}   repeats")
         for randomized, rs in rates.items():
-            label = "randomized tissue and load" if randomized else "built-in stomach"
-            print(f"{label:<30}{statistics.median(rs):>12.0f}   " + " ".join(f"{x:.0f}" for x in rs))
-        ratio = statistics.median(b / a for a, b in zip(rates[False], rates[True], strict=True))
-        print(f"randomized / built-in (median of paired ratios): {ratio:.2f}", flush=True)
+            print(f"{labels[randomized]:<30}{statistics.median(rs):>12.0f}   " + " ".join(f"{x:.0f}" for x in rs))
+        for randomized in list(rates)[1:]:
+            ratio = statistics.median(b / a for a, b in zip(rates["none"], rates[randomized], strict=True))
+            print(f"{labels[randomized]} / built-in (median of paired ratios): {ratio:.2f}", flush=True)
     if args.only in (None, "training"):
         # The variants alternate, so a noisy spell on the machine hits all of them alike. E's config
         # has 2 envs; the x4 row shows what more environments per core would buy.

@@ -8,7 +8,9 @@ into the run folder. A finished trial is not run again: killing the study
 and running the same command resumes where it stopped. Tasks declare their
 resources (``--cpus-per-trial``, ``--gpus-per-trial``); ``ray.init()``
 starts a local cluster on a laptop, ``--address`` (or ``RAY_ADDRESS``)
-connects to a running cluster.
+connects to a running cluster. An entry is a policy letter or a variant of one
+(``E-randomized``: train/policies.yaml's variants); ``--anatomy test`` evaluates
+in the held-out anatomies instead of the built-in stomach.
 
 The analysis (:mod:`mjendo.stats`) gives per policy and environment the
 success rate with a 95 % interval over seeds and trials (stratified
@@ -28,7 +30,7 @@ import shutil
 import socket
 import sys
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -43,13 +45,32 @@ RESULTS_FILE = "study_trials.csv.gz"  # compressed (4x): every published seed ca
 VALIDATION_FILE = "study_validation.json"
 
 
-def per_stomach(name: str, fidelity: str) -> str:
-    """A run's study file for one stomach: the fast one keeps ``name``, others add their fidelity.
+def per_stomach(name: str, fidelity: str, anatomy: int | str | None = None) -> str:
+    """A run's study file for one stomach: the fast built-in one keeps ``name``, others add their fidelity
+    and the stomachs evaluated in (``study_trials_test.csv.gz``: the test anatomies).
 
-    So a full-stomach study keeps its own cache and never overwrites the fast one's.
+    So a full-stomach or test-anatomy study keeps its own cache and never overwrites the fast one's.
     """
     stem, ext = name.split(".", 1)
-    return name if fidelity == "fast" else f"{stem}_{fidelity}.{ext}"
+    tags = ([] if fidelity == "fast" else [fidelity]) + ([] if anatomy is None else [Path(str(anatomy)).name])
+    return ".".join(["_".join([stem, *tags]), ext])
+
+
+def study_files(directory: Path) -> list[Path]:
+    """Every stomach's study trials and validation in a folder (what publishing and adopting carry)."""
+    stems = [f.split(".", 1)[0] for f in (RESULTS_FILE, VALIDATION_FILE)]
+    return sorted(f for stem in stems for f in Path(directory).glob(f"{stem}*"))
+
+
+def split_spec(spec: str) -> tuple[str, str | None]:
+    """A study entry: a policy letter, or a variant of it as ``E-randomized`` (train/policies.yaml variants)."""
+    policy, _, variant = spec.partition("-")
+    return policy, variant or None
+
+
+def policy_home(spec: str) -> Path:
+    """Where an entry's shipped policy lives: models/policies/<P>/, a variant's models/policies/variants/<P>-<v>/."""
+    return paths.policies_dir() / ("variants" if split_spec(spec)[1] else "") / spec
 
 
 # Validation (choosing the seed to ship): trials in the policy's own training condition on seeds of their
@@ -65,7 +86,7 @@ COMPARISONS = (("C", "B"), ("E", "D"), ("E", "C"), ("D", "B"), ("E", "A"))
 class StudyConfig:
     """One study grid and where it runs."""
 
-    policies: tuple[str, ...] = ("D", "E")
+    policies: tuple[str, ...] = ("D", "E")  # letters, or variants as E-randomized
     seeds: tuple[int, ...] = (0, 1, 2)
     # Per-policy seed lists that replace ``seeds`` for that policy (``--seeds-for D=0,1``): a study can hold
     # the seeds that have finished for each policy without training the missing ones of the others.
@@ -75,6 +96,7 @@ class StudyConfig:
     validation_trials: int = 100  # per seed, in the training condition: picks the seed to ship
     fidelity: str = "fast"  # stomach the final policies are evaluated in
     envs: tuple[str, ...] | None = None  # None: the evaluation study's environments
+    anatomy: int | str | None = None  # stomachs evaluated in (TaskConfig.anatomy): None the built-in one
     config: Path = paths.TRAINING_CONFIG
     runs: Path = paths.RUNS
     out: Path = paths.RUNS / "study"
@@ -92,9 +114,10 @@ class StudyConfig:
         return [(p, s) for p in self.policies for s in self.seeds_of(p)]
 
     def check(self) -> None:
-        bad = [p for p in self.policies if p not in POLICY_NAMES]
+        bad = [p for p in self.policies if split_spec(p)[0] not in POLICY_NAMES]
         if bad or not self.policies:
-            raise ConfigError(f"unknown policy {bad[0] if bad else ''!r}; valid: {', '.join(POLICY_NAMES)}")
+            raise ConfigError(f"unknown policy {bad[0] if bad else ''!r}; valid: {', '.join(POLICY_NAMES)}, or a "
+                              "variant of one as E-randomized")
         stray = [p for p, _ in self.seeds_for if p not in self.policies]
         if stray:
             raise ConfigError(f"--seeds-for names policy {stray[0]!r}, which is not in --policies "
@@ -107,11 +130,14 @@ class StudyConfig:
         if self.cpus_per_trial <= 0 or self.gpus_per_trial < 0:
             raise ConfigError("--cpus-per-trial must be > 0 and --gpus-per-trial >= 0")
         for p in self.policies:
-            load_config(p, self.config, total_timesteps=self.timesteps)
+            train_config(self, p, 0)  # unknown variants and bad configs stop here, named
+        if self.anatomy is not None:
+            task_config(anatomy=self.anatomy)
 
 
-def train_config(cfg: StudyConfig, policy: str, seed: int):
-    return load_config(policy, cfg.config, seed=seed, total_timesteps=cfg.timesteps)
+def train_config(cfg: StudyConfig, spec: str, seed: int):
+    policy, variant = split_spec(spec)
+    return load_config(policy, cfg.config, variant, seed=seed, total_timesteps=cfg.timesteps)
 
 
 def run_folder(cfg: StudyConfig, policy: str, seed: int) -> Path:
@@ -125,10 +151,10 @@ def finished(run: Path, budget: int) -> bool:
     return (run / artifacts.MODEL_FILE).exists() and int(meta.get("timesteps", 0)) >= budget
 
 
-def seed_folder(policy: str, seed: int) -> Path:
+def seed_folder(spec: str, seed: int) -> Path:
     """Where a published study seed lives: its policy files and its study trials (``--ship-best``); the
     shipped seed's model files are those of the shipped policy (artifacts.model_home)."""
-    return paths.policies_dir() / policy / artifacts.SEEDS_DIR / f"seed{seed}"
+    return policy_home(spec) / artifacts.SEEDS_DIR / f"seed{seed}"
 
 
 def _same_task(meta: dict, task: TaskConfig) -> bool:
@@ -153,7 +179,7 @@ def adopt_shipped(cfg: StudyConfig, policy: str, seed: int) -> bool:
     run, tc = run_folder(cfg, policy, seed), train_config(cfg, policy, seed)
     if run.exists() and (latest_checkpoint(run) is not None or (run / artifacts.MODEL_FILE).exists()):
         return False  # a run of its own (an empty folder, e.g. a start that failed, is not: else 1M steps again)
-    for source in (seed_folder(policy, seed), paths.policies_dir() / policy):
+    for source in (seed_folder(policy, seed), policy_home(policy)):
         meta = artifacts.read_meta(source) if (source / artifacts.META_FILE).exists() else {}
         if meta.get("seed") != seed or meta.get("training", {}).get("total_timesteps") != tc.total_timesteps:
             continue
@@ -161,8 +187,7 @@ def adopt_shipped(cfg: StudyConfig, policy: str, seed: int) -> bool:
             continue
         run.mkdir(parents=True, exist_ok=True)
         for name in (artifacts.META_FILE, artifacts.CONFIG_FILE, artifacts.MODEL_FILE, artifacts.NORM_FILE,
-                     *artifacts.LOG_FILES, *(per_stomach(f, fid) for f in (RESULTS_FILE, VALIDATION_FILE)
-                                             for fid in FIDELITIES)):
+                     *artifacts.LOG_FILES, *(f.name for f in study_files(source))):
             model_file = name in (artifacts.MODEL_FILE, artifacts.NORM_FILE)
             found = (artifacts.model_home(source) if model_file else source) / name
             if found.exists():
@@ -173,19 +198,19 @@ def adopt_shipped(cfg: StudyConfig, policy: str, seed: int) -> bool:
 
 
 def publish(cfg: StudyConfig) -> None:
-    """Ship each policy's best seed to models/policies/<P>/ and every seed, with its study trials, to
-    models/policies/<P>/seeds/seed<N>/ (model without optimizer moments, normalisation, meta, config;
-    the shipped seed's folder without model and normalisation, which are the shipped policy's)."""
+    """Ship each policy's best seed to models/policies/<P>/ (a variant's to models/policies/variants/<P>-<v>/)
+    and every seed, with its study trials, to <that folder>/seeds/seed<N>/ (model without optimizer moments,
+    normalisation, meta, config; the shipped seed's folder without model and normalisation, which are the
+    shipped policy's)."""
     best = best_seeds(cfg)
     for p in cfg.policies:
         for seed in cfg.seeds_of(p):
             run = run_folder(cfg, p, seed)
-            dest = artifacts.ship(run, p, seed_folder(p, seed))
-            for name in ("evaluations.csv", *(per_stomach(f, fid) for f in (RESULTS_FILE, VALIDATION_FILE)
-                                              for fid in FIDELITIES)):
-                if (run / name).exists():
-                    shutil.copy2(run / name, dest / name)
-        artifacts.ship(run_folder(cfg, p, best[p][0]), p)
+            dest = artifacts.ship(run, split_spec(p)[0], seed_folder(p, seed))
+            for f in [run / "evaluations.csv", *study_files(run)]:
+                if f.exists():
+                    shutil.copy2(f, dest / f.name)
+        artifacts.ship(run_folder(cfg, p, best[p][0]), split_spec(p)[0])
         for name in (artifacts.MODEL_FILE, artifacts.NORM_FILE):  # in git once: artifacts.model_home finds them
             (seed_folder(p, best[p][0]) / name).unlink(missing_ok=True)
 
@@ -196,7 +221,7 @@ def eval_seeds(cfg: StudyConfig) -> list[int]:
 
 
 def _read_results(run: Path, cfg: StudyConfig) -> list[dict] | None:
-    path = run / per_stomach(RESULTS_FILE, cfg.fidelity)
+    path = run / per_stomach(RESULTS_FILE, cfg.fidelity, cfg.anatomy)
     if not path.exists():
         return None
     rows = read_table(path)
@@ -210,12 +235,25 @@ def _read_results(run: Path, cfg: StudyConfig) -> list[dict] | None:
 
 
 def task_key(cfg: StudyConfig) -> str:
-    """What cached trials were measured on: the scene files and the target lists (both fingerprinted)."""
-    return f"{scene.fingerprint(cfg.fidelity)}-{targets.fingerprint()}"
+    """What cached trials were measured on: the scene files and the target lists (both fingerprinted), and
+    for other stomachs their meshes and maps."""
+    key = f"{scene.fingerprint(cfg.fidelity)}-{targets.fingerprint()}"
+    if cfg.anatomy is None:
+        return key
+    import hashlib
+
+    from mjendo import anatomy
+
+    h = hashlib.sha256()
+    for m in anatomy.members(cfg.anatomy):
+        folder = anatomy.stomach_dir(m)
+        h.update((folder / "stomach.json").read_bytes())
+        h.update(json.dumps(targets.read_map(targets.map_path(folder)), sort_keys=True).encode())
+    return f"{key}-{h.hexdigest()[:12]}"
 
 
 def _cells(cfg: StudyConfig, policy: str) -> list[tuple[str, str]]:
-    return [(c, e) for c, e in cells((policy,)) if cfg.envs is None or e in cfg.envs]
+    return [(policy, e) for _, e in cells((split_spec(policy)[0],)) if cfg.envs is None or e in cfg.envs]
 
 
 def trial(cfg: StudyConfig, policy: str, seed: int) -> list[dict]:
@@ -235,13 +273,15 @@ def trial(cfg: StudyConfig, policy: str, seed: int) -> list[dict]:
     mark.write_text(f"{socket.gethostname()} {os.getpid()}\n")
     try:
         if not finished(run, train_config(cfg, policy, seed).total_timesteps):
-            train(policy, cfg.timesteps, seed, out=cfg.runs, config_file=cfg.config, progress=False)
+            letter, variant = split_spec(policy)
+            train(letter, cfg.timesteps, seed, out=cfg.runs, config_file=cfg.config, progress=False,
+                  variant=variant)
         rows, model = [], task_key(cfg)
         for _, env in _cells(cfg, policy):
-            trials, _ = run_trials(str(run), env, eval_seeds(cfg), fidelity=cfg.fidelity)
+            trials, _ = run_trials(str(run), env, eval_seeds(cfg), fidelity=cfg.fidelity, anatomy=cfg.anatomy)
             rows += [{**asdict(t), "controller": policy, "seed_trained": seed, "fidelity": cfg.fidelity,
                       "model": model} for t in trials]
-        write_table(run / per_stomach(RESULTS_FILE, cfg.fidelity), rows)
+        write_table(run / per_stomach(RESULTS_FILE, cfg.fidelity, cfg.anatomy), rows)
         validate(cfg, policy, run)
         return rows
     finally:
@@ -249,18 +289,20 @@ def trial(cfg: StudyConfig, policy: str, seed: int) -> list[dict]:
 
 
 def validate(cfg: StudyConfig, policy: str, run: Path) -> dict:
-    """Success rate and mean error on the validation trials in the training condition (cached in the run)."""
+    """Success rate and mean error on the validation trials in the training condition, its stomachs included
+    (cached in the run)."""
     path = run / per_stomach(VALIDATION_FILE, cfg.fidelity)
-    model = task_key(cfg)
+    tc = train_config(cfg, policy, 0)
+    trained_in = tc.task_config().anatomy
+    model = task_key(replace(cfg, anatomy=trained_in))
     if path.exists():
         cached = json.loads(path.read_text())
         if (cached.get("fidelity"), cached.get("model"), cached.get("trials")) == (cfg.fidelity, model,
                                                                                    cfg.validation_trials):
             return cached
-    env = train_config(cfg, policy, 0).env
     seeds = [VALIDATION_SEED + i for i in range(cfg.validation_trials)]
-    trials, _ = run_trials(str(run), env, seeds, fidelity=cfg.fidelity)
-    result = {"env": env, "fidelity": cfg.fidelity, "model": model, "trials": len(trials),
+    trials, _ = run_trials(str(run), tc.env, seeds, fidelity=cfg.fidelity, anatomy=trained_in)
+    result = {"env": tc.env, "fidelity": cfg.fidelity, "model": model, "trials": len(trials),
               "first_seed": VALIDATION_SEED,
               "success_rate": float(np.mean([t.success for t in trials])),
               "mean_final_mm": float(np.mean([t.final_mm for t in trials]))}
@@ -384,7 +426,8 @@ def analyse(rows: list[dict]) -> tuple[list[dict], list[dict], dict]:
             "mean_force_n": force["mean"], "seed_list": " ".join(map(str, seeds)),
         })
     comparisons = []
-    for a, b in COMPARISONS:
+    variants = [(c, split_spec(c)[0]) for c in dict.fromkeys(c for c, _ in per_cell) if split_spec(c)[1]]
+    for a, b in (*COMPARISONS, *variants):  # a variant against its policy: what its change bought
         for env in CONDITIONS:
             if (a, env) in estimates and (b, env) in estimates:
                 d = stats.difference(estimates[a, env], estimates[b, env])
@@ -403,12 +446,10 @@ def _over_targets(a: dict[int, list[dict]], b: dict[int, list[dict]], rng) -> tu
     targets once for both policies and each policy's seeds independently (stats.crossed).
     """
     def table(by_seed: dict[int, list[dict]], targets: list) -> np.ndarray:
-        return np.array([[np.mean([_bool(t["success"]) for t in by_seed[s] if int(t["target"]) == k] or [np.nan])
+        return np.array([[np.mean([_bool(t["success"]) for t in by_seed[s] if _target(t) == k] or [np.nan])
                           for k in targets] for s in sorted(by_seed)])
 
-    # Cached rows come from CSV (strings), fresh ones from the evaluation (ints): compare as ints.
-    common = sorted({int(t["target"]) for ts in a.values() for t in ts}
-                    & {int(t["target"]) for ts in b.values() for t in ts})
+    common = sorted({_target(t) for ts in a.values() for t in ts} & {_target(t) for ts in b.values() for t in ts})
     ta, tb = table(a, common), table(b, common)
     keep = ~(np.isnan(ta).any(0) | np.isnan(tb).any(0))  # targets every seed of both was tried on
     if not keep.any():
@@ -418,12 +459,23 @@ def _over_targets(a: dict[int, list[dict]], b: dict[int, list[dict]], rng) -> tu
     return 100 * lo, 100 * hi
 
 
+def _target(trial: dict) -> tuple[str, int]:
+    """A trial's target: its stomach ("" the built-in one) and its point there. Cached rows come from CSV
+    (strings), fresh ones from the evaluation (ints): compared as ints."""
+    return str(trial.get("anatomy") or ""), int(trial["target"])
+
+
+def _class(trial: dict, classes: dict[int, str]) -> str:
+    """A trial's target class: recorded with the trial (its stomach's map), else the built-in map's."""
+    return trial.get("target_class") or classes.get(int(trial["target"]), "")
+
+
 def _column(trials: list[dict], name: str) -> np.ndarray:
     return np.array([float(t[name]) for t in trials], float)
 
 
 def _class_sr(trials: list[dict], classes: dict[int, str], cls: str) -> float:
-    hit = [_bool(t["success"]) for t in trials if classes.get(int(t["target"])) == cls]
+    hit = [_bool(t["success"]) for t in trials if _class(t, classes) == cls]
     return 100.0 * float(np.mean(hit)) if hit else float("nan")
 
 
@@ -452,12 +504,14 @@ def per_target_rows(per_cell: dict) -> list[dict]:
 
     classes, out = target_classes(), []
     for (pol, env), by_seed in per_cell.items():
-        groups: dict[int, list[bool]] = {}
+        groups: dict[tuple[str, int], list[dict]] = {}
         for s in sorted(by_seed):
             for t in by_seed[s]:
-                groups.setdefault(int(t["target"]), []).append(_bool(t["success"]))
-        out += [{"policy": pol, "env": env, "target": k, "class": classes.get(k, ""), "trials": len(v),
-                 "success_pct": 100.0 * np.mean(v)} for k, v in sorted(groups.items())]
+                groups.setdefault(_target(t), []).append(t)
+        out += [{"policy": pol, "env": env, **({"anatomy": a} if a else {}), "target": k,
+                 "class": _class(ts[0], classes), "trials": len(ts),
+                 "success_pct": 100.0 * np.mean([_bool(t["success"]) for t in ts])}
+                for (a, k), ts in sorted(groups.items())]
     return out
 
 
@@ -486,8 +540,8 @@ def write_outputs(cfg: StudyConfig, rows: list[dict], command: str, wall_s: floa
         d = seeds_dir / f"{p}_seed{s}"
         d.mkdir(parents=True, exist_ok=True)
         run = run_folder(cfg, p, s)
-        for name in (artifacts.META_FILE, *(per_stomach(f, cfg.fidelity) for f in (RESULTS_FILE, VALIDATION_FILE)),
-                     "evaluations.csv"):
+        for name in (artifacts.META_FILE, per_stomach(RESULTS_FILE, cfg.fidelity, cfg.anatomy),
+                     per_stomach(VALIDATION_FILE, cfg.fidelity), "evaluations.csv"):
             if (run / name).exists():
                 shutil.copy2(run / name, d / name)
     fig = figures.study_seeds(summary, out / "seeds.png")
@@ -500,7 +554,9 @@ def write_outputs(cfg: StudyConfig, rows: list[dict], command: str, wall_s: floa
         f"Wall time {wall_s / 60:.1f} min. Training seeds "
         f"{'; '.join(p + ' ' + ', '.join(map(str, cfg.seeds_of(p))) for p in cfg.policies)}, {cfg.trials} "
         f"evaluation trials (80 steps, seeds 0-{cfg.trials - 1}) per "
-        f"environment and seed, evaluated in the {cfg.fidelity} stomach.", "",
+        f"environment and seed, evaluated in the {cfg.fidelity} stomach"
+        + ("." if cfg.anatomy is None else f"s of anatomy `{cfg.anatomy}` (trials spread evenly over its stomachs; "
+           "a target is a point of one stomach)."), "",
         "SR: mean over seeds of each seed's success rate; 95 % interval from a stratified bootstrap over seeds and "
         "trials (mjendo/stats.py). Error: final tip error over all trials (mm).", "",
         "| policy | env | seeds | SR % (95 % CI) | SR per seed % | error mm (CI) | mean force N |",
@@ -572,16 +628,17 @@ def _ints(text: str) -> tuple[int, ...]:
 
 def _policy_seeds(text: str) -> tuple[str, tuple[int, ...]]:
     policy, sep, seeds = text.partition("=")
-    if not sep or policy not in POLICY_NAMES:
+    if not sep or split_spec(policy)[0] not in POLICY_NAMES:
         raise argparse.ArgumentTypeError(f"expected POLICY=SEEDS such as D=0,1 (policy one of "
-                                         f"{', '.join(POLICY_NAMES)}), got {text!r}")
+                                         f"{', '.join(POLICY_NAMES)}, or a variant as E-randomized), got {text!r}")
     return policy, _ints(seeds)
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m mjendo.study", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--policies", default="D,E", help="comma-separated, A-E (default D,E)")
+    ap.add_argument("--policies", default="D,E", help="comma-separated, A-E (default D,E), or variants of them "
+                    "(train/policies.yaml) as E-randomized")
     ap.add_argument("--seeds", type=_ints, default=(0, 1, 2), help="comma-separated training seeds (default 0,1,2)")
     ap.add_argument("--seeds-for", type=_policy_seeds, action="append", default=[], metavar="P=SEEDS",
                     help="one policy's own seeds, e.g. D=0,1 (repeatable; the others use --seeds)")
@@ -591,6 +648,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="trials per seed in the training condition that pick the seed to ship")
     ap.add_argument("--fidelity", choices=list(FIDELITIES), default="fast", help="stomach to evaluate in")
     ap.add_argument("--envs", help="comma-separated subset of FE, SE, DE, UE1, UE2")
+    ap.add_argument("--anatomy", type=targets.anatomy_arg,
+                    help="evaluate in other stomachs: a set (test: the held-out anatomies), a seed or a folder")
     ap.add_argument("--config", type=Path, default=paths.TRAINING_CONFIG, help="training config")
     ap.add_argument("--runs", type=Path, default=paths.RUNS, help="run folders (shared storage on a cluster)")
     ap.add_argument("--out", type=Path, default=paths.RUNS / "study", help="results (eval/study: the committed one)")
@@ -604,7 +663,8 @@ def main(argv: list[str] | None = None) -> int:
     cfg = StudyConfig(policies=tuple(a.policies.split(",")), seeds=a.seeds, seeds_for=tuple(a.seeds_for),
                       timesteps=a.timesteps,
                       trials=a.trials, validation_trials=a.validation_trials, fidelity=a.fidelity,
-                      envs=tuple(a.envs.split(",")) if a.envs else None, config=a.config, runs=a.runs, out=a.out,
+                      envs=tuple(a.envs.split(",")) if a.envs else None, anatomy=a.anatomy, config=a.config,
+                      runs=a.runs, out=a.out,
                       cpus_per_trial=a.cpus_per_trial, gpus_per_trial=a.gpus_per_trial, address=a.address,
                       ship_best=a.ship_best)
     command = "python -m mjendo.study " + " ".join(argv if argv is not None else sys.argv[1:])

@@ -174,8 +174,38 @@ def test_each_stomach_keeps_its_own_study_cache():
     from mjendo.study import RESULTS_FILE, VALIDATION_FILE, per_stomach
 
     assert per_stomach(RESULTS_FILE, "fast") == "study_trials.csv.gz"
-    names = {per_stomach(f, fid) for f in (RESULTS_FILE, VALIDATION_FILE) for fid in ("fast", "full")}
-    assert len(names) == 4 and "study_trials_full.csv.gz" in names
+    names = {per_stomach(f, fid, a) for f in (RESULTS_FILE, VALIDATION_FILE) for fid in ("fast", "full")
+             for a in (None, "test")}
+    assert len(names) == 8 and "study_trials_full.csv.gz" in names
+    assert per_stomach(RESULTS_FILE, "fast", "test") == "study_trials_test.csv.gz"
+
+
+def test_a_variant_is_a_study_entry_of_its_own(tmp_path, monkeypatch):
+    # E-randomized trains as E's variant, lives beside the paper's policies, and is compared with plain E.
+    from mjendo import study
+
+    monkeypatch.setenv("MJENDO_POLICIES", str(tmp_path))
+    assert study.split_spec("E") == ("E", None) and study.split_spec("E-scope-curriculum") == ("E", "scope-curriculum")
+    assert study.seed_folder("E-randomized", 2) == tmp_path / "variants" / "E-randomized" / "seeds" / "seed2"
+    cfg = study.StudyConfig(policies=("E", "E-randomized"), runs=tmp_path / "runs")
+    cfg.check()
+    assert study.run_folder(cfg, "E-randomized", 1) == tmp_path / "runs" / "E" / "randomized-seed1"
+    assert study.train_config(cfg, "E-randomized", 1).task_config().anatomy == "train"
+    assert [e for _, e in study._cells(cfg, "E-randomized")] == ["SE", "DE", "UE1", "UE2"]
+    with pytest.raises(ConfigError, match="no variant 'nonsense'"):
+        study.StudyConfig(policies=("E-nonsense",)).check()
+
+    def row(anatomy, target, success):
+        return {"anatomy": anatomy, "target": target, "target_class": "free", "success": str(success)}
+
+    # Target 5 of stomach 100 and target 5 of stomach 101 are different points: never pooled.
+    rows = [{**row(a, 5, ok), "controller": c, "env": "DE", "seed_trained": 0, "final_mm": 1.0,
+             "mean_force_n": 0.0} for c, a, ok in [("E", 100, True), ("E", 101, False),
+                                                     ("E-randomized", 100, True), ("E-randomized", 101, True)]]
+    _, comparisons, per_cell = study.analyse(rows)
+    assert [c["comparison"] for c in comparisons] == ["E-randomized - E"]
+    by_target = {(t["policy"], t["anatomy"], t["target"]): t["success_pct"] for t in study.per_target_rows(per_cell)}
+    assert by_target[("E", "100", 5)] == 100.0 and by_target[("E", "101", 5)] == 0.0
 
 
 def test_comparisons_resample_seeds_and_targets():

@@ -39,7 +39,8 @@ from mjendo import anatomy, cli, paths
 from mjendo.config import ANATOMY_SETS, CURRENT_VERSION, PAPER_EVAL_STEPS, PAPER_SUCCESS_MM, ConfigError
 from mjendo.units import from_mm, to_mm
 
-TARGETS_FILE = paths.STOMACH_DIR / "targets.json"
+MAP_NAME = "targets.json"  # a stomach's map; the committed ones are gzip-compressed (MAP_NAME + ".gz", 7x smaller)
+TARGETS_FILE = paths.STOMACH_DIR / f"{MAP_NAME}.gz"  # the built-in stomach's
 FREE_MM = PAPER_SUCCESS_MM  # free: the tip reaches the point in free space (the success distance)
 CONTACT_AIDED_MM = 10.0  # contact-aided: free space misses it by this much or more
 MIN_CARDIA_MM = 35.0  # targets this close to the cardia are in the scope's blind start
@@ -82,8 +83,8 @@ class TargetTable:
 
 def map_path(stomach: Path) -> Path:
     """The target map of a stomach's folder: targets.json, or the gzip-compressed targets.json.gz that the
-    benchmark's stomachs keep (thirty maps in git, 7x smaller)."""
-    plain = Path(stomach) / TARGETS_FILE.name
+    committed stomachs keep (thirty-one maps in git, 7x smaller)."""
+    plain = Path(stomach) / MAP_NAME
     packed = plain.with_name(plain.name + ".gz")
     return packed if packed.exists() and not plain.exists() else plain
 
@@ -382,7 +383,7 @@ def replay_demo(task, demo: tuple, point: int, start: int | None) -> tuple[int |
 
 
 def _listed_aided(list_name: str, path: Path) -> tuple[dict, list[int]]:
-    meta = json.loads(Path(path).read_text())
+    meta = read_map(path)
     points = {p["id"]: p for p in meta["points"]}
     return points, [i for i in meta["lists"][list_name] if points[i]["class"] == "contact_aided"]
 
@@ -537,7 +538,7 @@ def figure(out: Path, path: Path = TARGETS_FILE) -> Path:
 
     st = anatomy.load()
     table = load(CURRENT_VERSION, path)
-    meta = json.loads(Path(path).read_text())
+    meta = read_map(path)
     rest = free_targets("fast", CURRENT_VERSION)
     points = np.einsum("nk,nkd->nd", table.bary, rest[table.tris])
     classes = np.array([p["class"] for p in meta["points"]], dtype=object)
@@ -568,7 +569,7 @@ def benchmark_maps(name: str, episodes: int, seed: int, workers: int = 2) -> Non
             anatomy.save(anatomy.generate(k), folder)
         t0 = time.time()
         meta = make_map(episodes, seed, progress=False, anatomy_id=k, workers=workers)
-        write_map(meta, folder / f"{TARGETS_FILE.name}.gz")
+        write_map(meta, folder / f"{MAP_NAME}.gz")
         sizes = ", ".join(f"{n} {len(v)}" for n, v in meta["lists"].items())
         print(f"{folder}: {meta['info']['classes']}, lists {sizes} ({time.time() - t0:.0f} s)", flush=True)
 

@@ -12,7 +12,7 @@ from mjendo.sim import Simulator
 from mjendo.task import NavigationTask, free_targets
 
 MAP = targets.load()
-POINTS = {p["id"]: p for p in json.loads(targets.TARGETS_FILE.read_text())["points"]}
+POINTS = {p["id"]: p for p in targets.read_map(targets.TARGETS_FILE)["points"]}
 
 
 def test_classes_follow_the_rule_and_lists_are_drawn_from_them():
@@ -135,7 +135,7 @@ def test_a_missing_target_table_says_how_to_make_it(tmp_path):
 def test_slack_replays_each_demonstrator_to_its_first_arrival(tmp_path):
     # Two of list A's contact-aided targets: each recorded demonstrator arrives within the trial, in SE and from
     # every load phase, and none sooner than 30 steps (75 mm of full-speed insertion): they lie deep.
-    meta = json.loads(targets.TARGETS_FILE.read_text())
+    meta = targets.read_map(targets.TARGETS_FILE)
     meta["lists"]["A"] = aided("A")[:2]
     path = tmp_path / "targets.json"
     path.write_text(json.dumps(meta))
@@ -153,7 +153,7 @@ def test_open_loop_replays_the_static_plan_from_load_phases_of_the_moving_stomac
     # the outcome again; the static stomach has no phases to replay from.
     from mjendo.config import ConfigError
 
-    meta = json.loads(targets.TARGETS_FILE.read_text())
+    meta = targets.read_map(targets.TARGETS_FILE)
     meta["lists"]["A"] = aided("A")[:2]
     path = tmp_path / "targets.json"
     path.write_text(json.dumps(meta))

@@ -127,15 +127,31 @@ def trial_targets(env, n: int, first: int = 0) -> list[tuple[int | None, int]]:
     """Trials by design: (stomach index, target) of trials first .. first + n - 1.
 
     In one stomach trial i aims at target i mod len(list); over a set of m stomachs trial i runs in stomach
-    i mod m and aims at its target (i // m) mod len(its list): every stomach and target as often, the load
-    phase drawn by the trial's seed.
+    i mod m and aims at the ((i // m) mod len)-th target of its list in spread_order: every stomach as often,
+    and a stomach tried fewer times than its list is long still gets targets from the whole list (a list
+    holds its free targets first). The load phase is drawn by the trial's seed.
     """
     m = len(env.anatomies)
     if m == 1:
         listed = env.task.targets.tolist()
         return [(None, listed[i % len(listed)]) for i in range(first, first + n)]
     lists = [env.anatomy_task(k).targets.tolist() for k in range(m)]
-    return [(i % m, lists[i % m][(i // m) % len(lists[i % m])]) for i in range(first, first + n)]
+    orders = [spread_order(len(t)) for t in lists]
+    return [(i % m, lists[i % m][orders[i % m][(i // m) % len(lists[i % m])]]) for i in range(first, first + n)]
+
+
+def spread_order(n: int) -> list[int]:
+    """0 .. n-1 in the van der Corput order: every prefix spreads evenly over the range."""
+    out, seen, j = [], set(), 0
+    while len(out) < n:  # ends by j = 2n: the dyadic points then fall in every 1/n-wide bin
+        x, f, k = 0.0, 0.5, j
+        while k:
+            x, f, k = x + f * (k & 1), f / 2, k >> 1
+        if int(x * n) not in seen:
+            seen.add(int(x * n))
+            out.append(int(x * n))
+        j += 1
+    return out
 
 
 def trial_records(env, ctrl, name: str, seeds: list[int], keep_paths: bool = False,

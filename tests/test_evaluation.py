@@ -158,6 +158,20 @@ def test_trials_cover_every_target_equally_however_they_are_chunked():
     assert max(counts) - min(counts) <= 1
 
 
+def test_few_trials_per_stomach_still_span_its_whole_list():
+    # A list holds its free targets first: over a set of stomachs, 20 trials per stomach once aimed at the
+    # first 20 targets of each list only (165 of 200 at free targets where the lists are 2/3 contact-aided).
+    from mjendo.evaluation import spread_order
+
+    for n in (1, 3, 31, 65, 85):
+        order = spread_order(n)
+        assert sorted(order) == list(range(n))  # every target once per len(list) trials
+        k = min(n, 8)  # any prefix spreads: each eighth of the list holds about one of the first eight
+        assert max(np.bincount(np.array(order[:k]) * k // n, minlength=k)) <= 2
+    second_half = [np.mean(np.array(spread_order(n)[:20]) >= n / 2) for n in (31, 40, 65, 85)]
+    assert all(0.4 <= f <= 0.6 for f in second_half), second_half
+
+
 def test_success_by_target_class_counts_each_class_apart():
     from mjendo.evaluation import Trial, by_class
 

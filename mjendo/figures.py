@@ -26,6 +26,22 @@ def _plt():
     return plt
 
 
+def _save(fig, out, dpi: int) -> Path:
+    """Write a figure as a 256-colour PNG (a third of the size of matplotlib's RGBA: the figures live in git)."""
+    import io
+
+    from PIL import Image
+
+    buf = io.BytesIO()
+    fig.savefig(buf, dpi=dpi, format="png")
+    _plt().close(fig)
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    image = Image.open(buf).convert("RGB").quantize(256, method=Image.Quantize.MEDIANCUT, dither=Image.Dither.NONE)
+    image.save(out, format="PNG", optimize=True)
+    return out
+
+
 def _read(path: Path) -> dict[str, np.ndarray]:
     if not path.exists():
         return {}
@@ -67,10 +83,7 @@ def training_curve(run: Path | list[Path], out: Path, labels: list[str] | None =
     for ax in axes[-1]:
         ax.set_xlabel("timesteps")
     fig.tight_layout()
-    Path(out).parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=110)
-    plt.close(fig)
-    return Path(out)
+    return _save(fig, out, 110)
 
 
 def trajectories(paths: list[dict], out: Path, title: str = "Policy E in DE") -> Path:
@@ -97,9 +110,7 @@ def trajectories(paths: list[dict], out: Path, title: str = "Policy E in DE") ->
            aspect="equal")
     ax.legend(fontsize=8, loc="lower left")
     fig.tight_layout()
-    fig.savefig(out, dpi=120)
-    plt.close(fig)
-    return out
+    return _save(fig, out, 120)
 
 
 def force_distance(paths: list[dict], out: Path, title: str = "Policy E in DE") -> Path:
@@ -138,9 +149,7 @@ def force_distance(paths: list[dict], out: Path, title: str = "Policy E in DE") 
                title=f"{title}: {what}")
         ax.grid(alpha=0.3)
     fig.tight_layout()
-    fig.savefig(out, dpi=120)
-    plt.close(fig)
-    return out
+    return _save(fig, out, 120)
 
 
 def success_bars(rows: list[dict], out: Path) -> Path:
@@ -174,9 +183,7 @@ def success_bars(rows: list[dict], out: Path) -> Path:
     ax.legend(handles=handles, fontsize=8, loc="upper left", bbox_to_anchor=(1.005, 1.0), title="policy")
     ax.grid(axis="y", alpha=0.3)
     fig.tight_layout()
-    fig.savefig(out, dpi=120)
-    plt.close(fig)
-    return out
+    return _save(fig, out, 120)
 
 
 def study_seeds(summary: list[dict], out: Path) -> Path:
@@ -201,9 +208,7 @@ def study_seeds(summary: list[dict], out: Path) -> Path:
     axes[0][0].set_ylabel("success rate %")
     fig.suptitle("Success rate per training seed (dots) and across seeds (black: mean, 95 % CI)", fontsize=10)
     fig.tight_layout()
-    fig.savefig(out, dpi=120)
-    plt.close(fig)
-    return out
+    return _save(fig, out, 120)
 
 
 def study_curves(runs: dict[str, list[Path]], out: Path) -> Path:
@@ -227,9 +232,7 @@ def study_curves(runs: dict[str, list[Path]], out: Path) -> Path:
     if ax.get_legend_handles_labels()[1]:  # a study of runs too short to evaluate has no curves to name
         ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(out, dpi=120)
-    plt.close(fig)
-    return out
+    return _save(fig, out, 120)
 
 
 def all_figures(rows: list[dict], paths: list[dict], out: Path) -> list[tuple[Path, str]]:
@@ -295,9 +298,7 @@ def target_map(wall: np.ndarray, points: np.ndarray, classes: np.ndarray, lists:
     ax.set_aspect("equal")
     ax.legend(loc="lower left", fontsize=7)
     fig.tight_layout()
-    fig.savefig(out, dpi=110)
-    plt.close(fig)
-    return out
+    return _save(fig, out, 110)
 
 
 def anatomies(stomachs: list, out: Path, columns: int = 4) -> Path:
@@ -330,6 +331,4 @@ def anatomies(stomachs: list, out: Path, columns: int = 4) -> Path:
         ax.axis("off")
     axes.flat[0].legend(loc="lower left", fontsize=7)
     fig.tight_layout()
-    fig.savefig(out, dpi=110)
-    plt.close(fig)
-    return out
+    return _save(fig, out, 110)

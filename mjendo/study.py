@@ -515,6 +515,19 @@ def per_target_rows(per_cell: dict) -> list[dict]:
     return out
 
 
+def per_stomach_rows(per_cell: dict) -> list[dict]:
+    """Success per policy, env and stomach of a set, pooled over seeds (none for the built-in stomach)."""
+    out = []
+    for (pol, env), by_seed in per_cell.items():
+        groups: dict[str, list[bool]] = {}
+        for t in (t for s in sorted(by_seed) for t in by_seed[s] if t.get("anatomy") not in (None, "")):
+            groups.setdefault(str(t["anatomy"]), []).append(_bool(t["success"]))
+        order = sorted(groups, key=lambda a: (not a.isdigit(), int(a) if a.isdigit() else 0, a))  # seeds by number
+        out += [{"policy": pol, "env": env, "anatomy": a, "trials": len(groups[a]),
+                 "success_pct": 100.0 * np.mean(groups[a])} for a in order]
+    return out
+
+
 def _bool(x) -> bool:
     return x is True or str(x) == "True"
 
@@ -578,6 +591,15 @@ def write_outputs(cfg: StudyConfig, rows: list[dict], command: str, wall_s: floa
                      f"{r['median_target_motion_mm']:.1f} | {r['median_duration_s']:.1f} | "
                      f"{r['contact_share_pct']:.1f} | {r['over_1n_pct']:.2f} | {r['over_2n_pct']:.2f} | "
                      f"{r['median_peak_force_n']:.2f} |")
+    stomachs = per_stomach_rows(per_cell)
+    if stomachs:
+        _csv(out / "per_anatomy.csv", stomachs)
+        names = list(dict.fromkeys(r["anatomy"] for r in stomachs))
+        lines += ["", "## Per stomach", "", "Success % in each stomach, pooled over seeds (per_anatomy.csv).", "",
+                  "| policy | env | " + " | ".join(names) + " |", "|---|---|" + "---|" * len(names)]
+        for pol, env in dict.fromkeys((r["policy"], r["env"]) for r in stomachs):
+            sr = {r["anatomy"]: r["success_pct"] for r in stomachs if (r["policy"], r["env"]) == (pol, env)}
+            lines.append(f"| {pol} | {env} | " + " | ".join(f"{sr[a]:.0f}" for a in names) + " |")
     if comparisons:
         lines += ["", "## The paper's comparisons", "",
                   "| comparison | env | difference, points | 95 % CI over seeds and trials | excludes 0 | "

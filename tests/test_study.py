@@ -206,6 +206,9 @@ def test_a_variant_is_a_study_entry_of_its_own(tmp_path, monkeypatch):
     assert [c["comparison"] for c in comparisons] == ["E-randomized - E"]
     by_target = {(t["policy"], t["anatomy"], t["target"]): t["success_pct"] for t in study.per_target_rows(per_cell)}
     assert by_target[("E", "100", 5)] == 100.0 and by_target[("E", "101", 5)] == 0.0
+    by_stomach = {(r["policy"], r["anatomy"]): r["success_pct"] for r in study.per_stomach_rows(per_cell)}
+    assert by_stomach == {("E", "100"): 100.0, ("E", "101"): 0.0, ("E-randomized", "100"): 100.0,
+                          ("E-randomized", "101"): 100.0}
 
 
 def test_comparisons_resample_seeds_and_targets():

@@ -258,7 +258,10 @@ def _start_from(cfg: TrainConfig, venv):
     from stable_baselines3 import PPO
     from stable_baselines3.common.vec_env import VecNormalize
 
-    src = model_home(Path(cfg.init_from))
+    src = Path(cfg.init_from)
+    if not src.is_absolute() and not src.exists():  # a config's relative path names a folder of mjendo's data
+        src = paths.DATA / src
+    src = model_home(src)
     if not (src / MODEL_FILE).exists():
         raise ConfigError(f"--init-from {src} holds no {MODEL_FILE}; give a policy folder such as "
                           "models/policies/E or a finished run folder")
@@ -266,8 +269,11 @@ def _start_from(cfg: TrainConfig, venv):
         venv = VecNormalize.load(str(src / NORM_FILE), venv)  # keeps adapting to the new stomach
         venv.training = True
     schedule = learning_rate_schedule(cfg)
+    p = cfg.ppo  # this run's PPO settings rule, not the ones the policy was trained with
     model = PPO.load(str(src / MODEL_FILE), env=venv, device=torch_device(cfg),
-                     custom_objects={"learning_rate": schedule, "lr_schedule": schedule})
+                     custom_objects={"learning_rate": schedule, "lr_schedule": schedule},
+                     n_steps=p.n_steps, batch_size=p.batch_size, n_epochs=p.n_epochs, gamma=p.gamma,
+                     gae_lambda=p.gae_lambda, clip_range=p.clip_range, ent_coef=p.ent_coef)
     model.num_timesteps = 0  # this run's budget counts from here
     return model
 

@@ -57,6 +57,25 @@ def test_fine_tuning_starts_from_the_policy_and_counts_its_own_steps(short_run, 
         train("D", timesteps=128, out=tmp_path / "x", config_file=cfg_path, init_from=tmp_path / "nothing")
 
 
+def test_a_variant_starting_from_a_shipped_policy_finds_it_from_any_directory(short_run, tmp_path, monkeypatch):
+    # free-pool-then-A names its start as a path inside mjendo's data: it must not depend on the working directory.
+    import torch
+    from stable_baselines3 import PPO
+
+    cfg_path = short_run[0].parent.parent / "policies.yaml"
+    monkeypatch.chdir(tmp_path)
+    run = train("E", timesteps=128, out=tmp_path / "runs", config_file=cfg_path, variant="free-pool-then-A",
+                progress=False)
+    meta = json.loads((run / "meta.json").read_text())
+    assert run.name == "free-pool-then-A-seed0" and meta["training"]["fidelity"] == "fast"
+    assert meta["init_from"] == "models/policies/variants/E-free-pool" and meta["training"]["train_targets"] is None
+    assert meta["timesteps"] == 128  # the run's own PPO settings (64 steps per env), not the source's 1024
+    src = mjendo.paths.DATA / meta["init_from"]
+    before, after = (PPO.load(str(d / "model.zip"), device="cpu").policy.state_dict() for d in (src, run))
+    mats = [k for k in before if before[k].ndim == 2]
+    assert all(torch.norm(after[k] - before[k]) < 0.05 * torch.norm(before[k]) for k in mats)
+
+
 def test_fine_tune_config_block_applies_only_with_init_from(tmp_path):
     assert load_config("E", TRAINING_CONFIG).fidelity == "fast"
     ft = load_config("E", TRAINING_CONFIG, init_from="models/policies/E")

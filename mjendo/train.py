@@ -263,7 +263,7 @@ def _start_from(cfg: TrainConfig, venv):
         src = paths.DATA / src
     src = model_home(src)
     if not (src / MODEL_FILE).exists():
-        raise ConfigError(f"--init-from {src} holds no {MODEL_FILE}; give a policy folder such as "
+        raise ConfigError(f"init_from {src} holds no {MODEL_FILE}; give a policy folder such as "
                           "models/policies/E or a finished run folder")
     if cfg.normalize:
         venv = VecNormalize.load(str(src / NORM_FILE), venv)  # keeps adapting to the new stomach

@@ -465,7 +465,7 @@ def evaluate(trials: int = 200, controllers=CONTROLLERS, workers: int = 2, out: 
     write_table(out / "per_target.csv", targets)
     from mjendo import figures
 
-    made = figures.all_figures(rows, tip_paths, out)
+    made = figures.all_figures(rows, tip_paths, out, [asdict(t) for t in all_trials], steps)
     report = write_report(rows, out, command, wall, trials, fidelity, made, by_class(all_trials), anatomy, steps)
     print(report.read_text())
     print(f"wrote {out} in {wall / 60:.1f} min")

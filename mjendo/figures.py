@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mjendo.config import CONDITIONS
+from mjendo.config import CONDITIONS, PAPER_EVAL_STEPS
 from mjendo.units import to_mm
 
 MIN_RUNS_FOR_SMOOTH_MEAN = 20  # below this a spline through the mean says more than the runs do
@@ -235,13 +235,49 @@ def study_curves(runs: dict[str, list[Path]], out: Path) -> Path:
     return _save(fig, out, 120)
 
 
-def all_figures(rows: list[dict], paths: list[dict], out: Path) -> list[tuple[Path, str]]:
+def success_by_step(trials: list[dict], out: Path, steps: int) -> Path:
+    """Share of trials reached by each step, one panel per environment, all targets (solid) and the
+    contact-aided ones (dotted): where a curve still climbs at the trial's end, the trial's time limits it."""
+    plt = _plt()
+    envs = [e for e in CONDITIONS if any(t["env"] == e for t in trials)]
+    controllers = list(dict.fromkeys(t["controller"] for t in trials))
+    fig, axes = plt.subplots(1, len(envs), figsize=(3.2 * len(envs) + 1.5, 3.4), sharey=True, squeeze=False)
+    k = np.arange(steps + 1)
+    for ax, env in zip(axes[0], envs, strict=True):
+        for i, name in enumerate(controllers):
+            cell = [t for t in trials if t["env"] == env and t["controller"] == name]
+            for style, chosen in (("-", cell), (":", [t for t in cell if t.get("target_class") == "contact_aided"])):
+                if not chosen:
+                    continue
+                reached = np.array([float(t["steps_to_success"]) for t in chosen if str(t["success"]) == "True"])
+                share = 100 * (reached[None, :] <= k[:, None]).sum(1) / len(chosen)
+                ax.plot(k, share, style, color=f"C{i}", lw=1.4, label=Path(name).name if style == "-" else None)
+        if steps > PAPER_EVAL_STEPS:
+            ax.axvline(PAPER_EVAL_STEPS, color="k", lw=0.8, ls="--")
+        ax.set(title=env, xlabel="step", xlim=(0, steps), ylim=(-2, 102))
+        ax.grid(alpha=0.3)
+    axes[0][0].set_ylabel("trials reached %")
+    axes[0][-1].legend(fontsize=7, loc="upper left")
+    fig.suptitle("Success by step: all targets (solid), contact-aided ones (dotted)", fontsize=10)
+    fig.tight_layout()
+    return _save(fig, out, 120)
+
+
+def all_figures(rows: list[dict], paths: list[dict], out: Path, trials: list[dict] | None = None,
+                steps: int = PAPER_EVAL_STEPS) -> list[tuple[Path, str]]:
     """Every figure of the evaluation report into ``out``, each with the caption the report shows."""
     from mjendo.paths import policies_dir
 
     made = [(success_bars(rows, out / "success_rates.png"),
              "Success rate of each policy in each environment (bars, with 95 % Wilson intervals) next to the "
              "paper's (hatched outlines).")]
+    if trials:
+        made.append((success_by_step(trials, out / "success_by_step.png", steps),
+                     f"Share of trials that reached their target by each step of the {steps}: all targets (solid) "
+                     "and contact-aided ones (dotted). A curve still climbing at the end means the trial's "
+                     "length, not the policy's aim, limits its success"
+                     + (f"; the dashed line marks the paper's {PAPER_EVAL_STEPS}-step trial." if steps >
+                        PAPER_EVAL_STEPS else ".")))
     if paths:
         made += [(trajectories(paths, out / "trajectories_E_DE.png"),
                   f"Tip trajectories of policy E in the dynamic stomach (DE), {len(paths)} trials, coloured by "

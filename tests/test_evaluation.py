@@ -205,3 +205,16 @@ def test_a_longer_trial_replays_the_paper_trial_and_goes_on(tmp_path):
             assert s.steps == 80 and (lg.success or lg.steps == 95)
     with pytest.raises(ConfigError, match="--trial-steps must be >= 1"):
         evaluate(trials=1, controllers=("baseline",), out=tmp_path, steps=0)
+
+
+def test_success_by_step_climbs_to_each_cells_success_rate(tmp_path, monkeypatch):
+    ts = [{"controller": "E", "env": "DE", "success": ok, "steps_to_success": s, "target_class": c}
+          for ok, s, c in ((True, 20.0, "free"), (True, 90.0, "contact_aided"), (False, math.nan, "contact_aided"),
+                           (True, 60.0, "contact_aided"))]
+    fig = _figure_of(monkeypatch, lambda: figures.success_by_step(ts, tmp_path / "s.png", 120))
+    ax = fig.axes[0]
+    everything, aided = (ln.get_ydata() for ln in ax.get_lines()[:2])
+    assert everything[19] == 0 and everything[20] == 25 and everything[80] == 50 and everything[-1] == 75
+    assert aided[80] == pytest.approx(100 / 3) and aided[-1] == pytest.approx(200 / 3)
+    assert np.all(np.diff(everything) >= 0)
+    assert any(ln.get_xdata()[0] == 80 for ln in ax.get_lines()[2:])  # the paper's trial length is marked

@@ -37,7 +37,15 @@ import numpy as np
 
 from mjendo import artifacts, cli, paths, scene, stats, targets
 from mjendo.artifacts import PolicyError
-from mjendo.config import CONDITIONS, FIDELITIES, POLICY_NAMES, ConfigError, TaskConfig, task_config
+from mjendo.config import (
+    CONDITIONS,
+    FIDELITIES,
+    PAPER_EVAL_STEPS,
+    POLICY_NAMES,
+    ConfigError,
+    TaskConfig,
+    task_config,
+)
 from mjendo.evaluation import EVAL_SEED_BASE, cells, read_table, run_trials, write_table
 from mjendo.train_config import load as load_config
 
@@ -45,15 +53,22 @@ RESULTS_FILE = "study_trials.csv.gz"  # compressed (4x): every published seed ca
 VALIDATION_FILE = "study_validation.json"
 
 
-def per_stomach(name: str, fidelity: str, anatomy: int | str | None = None) -> str:
+def per_stomach(name: str, fidelity: str, anatomy: int | str | None = None, steps: int = PAPER_EVAL_STEPS) -> str:
     """A run's study file for one stomach: the fast built-in one keeps ``name``, others add their fidelity
-    and the stomachs evaluated in (``study_trials_test.csv.gz``: the test anatomies).
+    and the stomachs evaluated in (``study_trials_test.csv.gz``: the test anatomies), and trials of another
+    length than the paper's add it (``study_trials_steps160.csv.gz``).
 
-    So a full-stomach or test-anatomy study keeps its own cache and never overwrites the fast one's.
+    So a full-stomach, test-anatomy or longer-trial study keeps its own cache and never overwrites the fast one's.
     """
     stem, ext = name.split(".", 1)
-    tags = ([] if fidelity == "fast" else [fidelity]) + ([] if anatomy is None else [Path(str(anatomy)).name])
+    tags = ([] if fidelity == "fast" else [fidelity]) + ([] if anatomy is None else [Path(str(anatomy)).name]) \
+        + ([] if steps == PAPER_EVAL_STEPS else [f"steps{steps}"])
     return ".".join(["_".join([stem, *tags]), ext])
+
+
+def results_file(cfg: StudyConfig) -> str:
+    """The name of a run's study trials for this study's stomach and trial length."""
+    return per_stomach(RESULTS_FILE, cfg.fidelity, cfg.anatomy, cfg.trial_steps)
 
 
 def study_files(directory: Path) -> list[Path]:
@@ -97,6 +112,7 @@ class StudyConfig:
     fidelity: str = "fast"  # stomach the final policies are evaluated in
     envs: tuple[str, ...] | None = None  # None: the evaluation study's environments
     anatomy: int | str | None = None  # stomachs evaluated in (TaskConfig.anatomy): None the built-in one
+    trial_steps: int = PAPER_EVAL_STEPS  # evaluation trial length (longer: what the trial's time costs)
     config: Path = paths.TRAINING_CONFIG
     runs: Path = paths.RUNS
     out: Path = paths.RUNS / "study"
@@ -125,8 +141,9 @@ class StudyConfig:
         for seeds in (self.seeds, *(s for _, s in self.seeds_for)):
             if not seeds or min(seeds) < 0 or len(set(seeds)) != len(seeds):
                 raise ConfigError(f"seeds must be distinct whole numbers >= 0, got {list(seeds)}")
-        if self.trials < 1 or self.validation_trials < 1 or (self.timesteps is not None and self.timesteps < 1):
-            raise ConfigError("--trials, --validation-trials and --timesteps must be >= 1")
+        if self.trials < 1 or self.validation_trials < 1 or self.trial_steps < 1 \
+                or (self.timesteps is not None and self.timesteps < 1):
+            raise ConfigError("--trials, --validation-trials, --trial-steps and --timesteps must be >= 1")
         if self.cpus_per_trial <= 0 or self.gpus_per_trial < 0:
             raise ConfigError("--cpus-per-trial must be > 0 and --gpus-per-trial >= 0")
         for p in self.policies:
@@ -221,7 +238,7 @@ def eval_seeds(cfg: StudyConfig) -> list[int]:
 
 
 def _read_results(run: Path, cfg: StudyConfig) -> list[dict] | None:
-    path = run / per_stomach(RESULTS_FILE, cfg.fidelity, cfg.anatomy)
+    path = run / results_file(cfg)
     if not path.exists():
         return None
     rows = read_table(path)
@@ -278,10 +295,11 @@ def trial(cfg: StudyConfig, policy: str, seed: int) -> list[dict]:
                   variant=variant)
         rows, model = [], task_key(cfg)
         for _, env in _cells(cfg, policy):
-            trials, _ = run_trials(str(run), env, eval_seeds(cfg), fidelity=cfg.fidelity, anatomy=cfg.anatomy)
+            trials, _ = run_trials(str(run), env, eval_seeds(cfg), fidelity=cfg.fidelity, anatomy=cfg.anatomy,
+                                   steps=cfg.trial_steps)
             rows += [{**asdict(t), "controller": policy, "seed_trained": seed, "fidelity": cfg.fidelity,
                       "model": model} for t in trials]
-        write_table(run / per_stomach(RESULTS_FILE, cfg.fidelity, cfg.anatomy), rows)
+        write_table(run / results_file(cfg), rows)
         validate(cfg, policy, run)
         return rows
     finally:
@@ -553,7 +571,7 @@ def write_outputs(cfg: StudyConfig, rows: list[dict], command: str, wall_s: floa
         d = seeds_dir / f"{p}_seed{s}"
         d.mkdir(parents=True, exist_ok=True)
         run = run_folder(cfg, p, s)
-        for name in (artifacts.META_FILE, per_stomach(RESULTS_FILE, cfg.fidelity, cfg.anatomy),
+        for name in (artifacts.META_FILE, results_file(cfg),
                      per_stomach(VALIDATION_FILE, cfg.fidelity), "evaluations.csv"):
             if (run / name).exists():
                 shutil.copy2(run / name, d / name)
@@ -566,7 +584,7 @@ def write_outputs(cfg: StudyConfig, rows: list[dict], command: str, wall_s: floa
         f"Command: `{command}`  ",
         f"Wall time {wall_s / 60:.1f} min. Training seeds "
         f"{'; '.join(p + ' ' + ', '.join(map(str, cfg.seeds_of(p))) for p in cfg.policies)}, {cfg.trials} "
-        f"evaluation trials (80 steps, seeds 0-{cfg.trials - 1}) per "
+        f"evaluation trials ({cfg.trial_steps} steps, seeds 0-{cfg.trials - 1}) per "
         f"environment and seed, evaluated in the {cfg.fidelity} stomach"
         + ("." if cfg.anatomy is None else f"s of anatomy `{cfg.anatomy}` (trials spread evenly over its stomachs; "
            "a target is a point of one stomach)."), "",
@@ -672,6 +690,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--envs", help="comma-separated subset of FE, SE, DE, UE1, UE2")
     ap.add_argument("--anatomy", type=targets.anatomy_arg,
                     help="evaluate in other stomachs: a set (test: the held-out anatomies), a seed or a folder")
+    ap.add_argument("--trial-steps", type=int, default=PAPER_EVAL_STEPS,
+                    help="evaluation trial length (the paper's 80; longer: what the trial's time costs; validation "
+                    "trials stay at 80)")
     ap.add_argument("--config", type=Path, default=paths.TRAINING_CONFIG, help="training config")
     ap.add_argument("--runs", type=Path, default=paths.RUNS, help="run folders (shared storage on a cluster)")
     ap.add_argument("--out", type=Path, default=paths.RUNS / "study", help="results (eval/study: the committed one)")
@@ -685,7 +706,8 @@ def main(argv: list[str] | None = None) -> int:
     cfg = StudyConfig(policies=tuple(a.policies.split(",")), seeds=a.seeds, seeds_for=tuple(a.seeds_for),
                       timesteps=a.timesteps,
                       trials=a.trials, validation_trials=a.validation_trials, fidelity=a.fidelity,
-                      envs=tuple(a.envs.split(",")) if a.envs else None, anatomy=a.anatomy, config=a.config,
+                      envs=tuple(a.envs.split(",")) if a.envs else None, anatomy=a.anatomy,
+                      trial_steps=a.trial_steps, config=a.config,
                       runs=a.runs, out=a.out,
                       cpus_per_trial=a.cpus_per_trial, gpus_per_trial=a.gpus_per_trial, address=a.address,
                       ship_best=a.ship_best)

@@ -104,6 +104,21 @@ def _tiny_grid_checks(cfg, tiny_config, tmp_path, monkeypatch):
     before = (tmp_path / "runs" / "D" / "seed1" / "study_trials.csv.gz").stat().st_mtime_ns
     study(cfg, command="test again")
     assert (tmp_path / "runs" / "D" / "seed1" / "study_trials.csv.gz").stat().st_mtime_ns == before
+    # Longer trials keep a cache of their own, and up to step 80 they are the paper-length trials.
+    from dataclasses import replace
+
+    from mjendo.evaluation import read_table
+
+    study(replace(cfg, trial_steps=120, out=tmp_path / "study_120"), command="test longer")
+    run1 = tmp_path / "runs" / "D" / "seed1"
+    assert (run1 / "study_trials.csv.gz").stat().st_mtime_ns == before
+    short = {(r["env"], r["trial"]): r for r in read_table(run1 / "study_trials.csv.gz")}
+    longer = read_table(run1 / "study_trials_steps120.csv.gz")
+    assert len(longer) == len(short) and max(int(r["steps"]) for r in longer) > 80
+    for r in longer:
+        by_80 = r["success"] == "True" and float(r["steps_to_success"]) <= 80
+        assert by_80 == (short[(r["env"], r["trial"])]["success"] == "True") and int(r["steps"]) <= 120
+    assert "(120 steps," in (tmp_path / "study_120" / "report.md").read_text()
     # ... unless the scene files or the target lists changed since: then they are evaluated again.
     from mjendo import scene
     from mjendo.study import _read_results
@@ -178,6 +193,8 @@ def test_each_stomach_keeps_its_own_study_cache():
              for a in (None, "test")}
     assert len(names) == 8 and "study_trials_full.csv.gz" in names
     assert per_stomach(RESULTS_FILE, "fast", "test") == "study_trials_test.csv.gz"
+    assert per_stomach(RESULTS_FILE, "fast", None, 160) == "study_trials_steps160.csv.gz"
+    assert per_stomach(RESULTS_FILE, "fast", None, 80) == "study_trials.csv.gz"  # the paper's length
 
 
 def test_a_variant_is_a_study_entry_of_its_own(tmp_path, monkeypatch):

@@ -268,6 +268,7 @@ def _start_from(cfg: TrainConfig, venv):
     if cfg.normalize:
         venv = VecNormalize.load(str(src / NORM_FILE), venv)  # keeps adapting to the new stomach
         venv.training = True
+        venv.gamma = cfg.ppo.gamma  # rewards scale by this run's discounted returns, not the source's
     schedule = learning_rate_schedule(cfg)
     p = cfg.ppo  # this run's PPO settings rule, not the ones the policy was trained with
     model = PPO.load(str(src / MODEL_FILE), env=venv, device=torch_device(cfg),

@@ -76,6 +76,22 @@ def test_a_variant_starting_from_a_shipped_policy_finds_it_from_any_directory(sh
     assert all(torch.norm(after[k] - before[k]) < 0.05 * torch.norm(before[k]) for k in mats)
 
 
+def test_a_fine_tune_with_another_discount_uses_it_everywhere(short_run, tmp_path):
+    # short-horizon continues a policy trained at 0.99 with 0.98: PPO and the reward normalisation both switch.
+    import pickle
+
+    from stable_baselines3 import PPO
+
+    cfg_path = short_run[0].parent.parent / "policies.yaml"
+    run = train("E", timesteps=128, out=tmp_path, config_file=cfg_path, variant="short-horizon", progress=False)
+    assert PPO.load(str(run / "model.zip"), device="cpu").gamma == pytest.approx(0.98)
+    with open(run / "vecnormalize.pkl", "rb") as f:
+        assert pickle.load(f).gamma == pytest.approx(0.98)
+    source = mjendo.paths.DATA / "models/policies/variants/E-free-pool-then-A/vecnormalize.pkl"
+    with open(source, "rb") as f:
+        assert pickle.load(f).gamma == pytest.approx(0.99)  # what it would have kept
+
+
 def test_fine_tune_config_block_applies_only_with_init_from(tmp_path):
     assert load_config("E", TRAINING_CONFIG).fidelity == "fast"
     ft = load_config("E", TRAINING_CONFIG, init_from="models/policies/E")

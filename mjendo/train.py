@@ -276,6 +276,10 @@ def _start_from(cfg: TrainConfig, venv):
                      n_steps=p.n_steps, batch_size=p.batch_size, n_epochs=p.n_epochs, gamma=p.gamma,
                      gae_lambda=p.gae_lambda, clip_range=p.clip_range, ent_coef=p.ent_coef)
     model.num_timesteps = 0  # this run's budget counts from here
+    # PPO.load seeds torch, NumPy and the envs with the source's seed: every fine-tune of one source would
+    # draw the same actions and episodes whatever its own seed.
+    model.seed = cfg.seed
+    model.set_random_seed(cfg.seed)
     return model
 
 

@@ -76,6 +76,23 @@ def test_a_variant_starting_from_a_shipped_policy_finds_it_from_any_directory(sh
     assert all(torch.norm(after[k] - before[k]) < 0.05 * torch.norm(before[k]) for k in mats)
 
 
+def test_fine_tunes_of_one_policy_with_different_seeds_differ(short_run, tmp_path):
+    # PPO.load re-seeded every fine-tune with the source's seed: seeds 1 and 2 trained the same policy (two
+    # updates: the last one of a run has a learning rate of 0).
+    import torch
+    from stable_baselines3 import PPO
+
+    src, _ = short_run
+    cfg_path = src.parent.parent / "policies.yaml"
+    runs = {s: train("D", timesteps=256, seed=s, out=tmp_path, config_file=cfg_path, init_from=src, progress=False)
+            for s in (1, 2)}
+    first = {s: (r / "episodes.csv").read_text().splitlines()[1:4] for s, r in runs.items()}
+    assert first[1] != first[2]
+    weights = {s: PPO.load(str(r / "model.zip"), device="cpu").policy.state_dict() for s, r in runs.items()}
+    assert any(not torch.equal(weights[1][k], weights[2][k]) for k in weights[1])
+    assert PPO.load(str(runs[2] / "model.zip"), device="cpu").seed == 2
+
+
 def test_a_fine_tune_with_another_discount_uses_it_everywhere(short_run, tmp_path):
     # short-horizon continues a policy trained at 0.99 with 0.98: PPO and the reward normalisation both switch.
     import pickle

@@ -270,16 +270,13 @@ def _start_from(cfg: TrainConfig, venv):
         venv.training = True
         venv.gamma = cfg.ppo.gamma  # rewards scale by this run's discounted returns, not the source's
     schedule = learning_rate_schedule(cfg)
-    p = cfg.ppo  # this run's PPO settings rule, not the ones the policy was trained with
+    p = cfg.ppo  # this run's PPO settings and seed rule, not the ones the policy was trained with (with the
+    # source's seed every fine-tune of one policy would draw the same actions and episodes)
     model = PPO.load(str(src / MODEL_FILE), env=venv, device=torch_device(cfg),
-                     custom_objects={"learning_rate": schedule, "lr_schedule": schedule},
+                     custom_objects={"learning_rate": schedule, "lr_schedule": schedule}, seed=cfg.seed,
                      n_steps=p.n_steps, batch_size=p.batch_size, n_epochs=p.n_epochs, gamma=p.gamma,
                      gae_lambda=p.gae_lambda, clip_range=p.clip_range, ent_coef=p.ent_coef)
     model.num_timesteps = 0  # this run's budget counts from here
-    # PPO.load seeds torch, NumPy and the envs with the source's seed: every fine-tune of one source would
-    # draw the same actions and episodes whatever its own seed.
-    model.seed = cfg.seed
-    model.set_random_seed(cfg.seed)
     return model
 
 

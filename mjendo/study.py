@@ -24,6 +24,7 @@ E - C, D - B, E - A as differences with intervals. Writes ``summary.csv``,
 from __future__ import annotations
 
 import argparse
+import filecmp
 import json
 import os
 import shutil
@@ -555,6 +556,32 @@ def _csv(path: Path, rows: list[dict]) -> None:
         write_table(path, rows)
 
 
+def seed_record(cfg: StudyConfig, policy: str, seed: int) -> Path:
+    """The folder holding a seed's meta, study trials, validation and curve for the report: its published
+    folder when that holds these very trials (in git once), else a copy under <out>/seeds/."""
+    run, published = run_folder(cfg, policy, seed), seed_folder(policy, seed)
+    names = (artifacts.META_FILE, results_file(cfg), per_stomach(VALIDATION_FILE, cfg.fidelity), "evaluations.csv")
+    copy = Path(cfg.out) / "seeds" / f"{policy}_seed{seed}"
+    if all((run / n).exists() == (published / n).exists() and (not (run / n).exists() or
+           filecmp.cmp(run / n, published / n, shallow=False)) for n in names[1:]) \
+            and (published / results_file(cfg)).exists():
+        shutil.rmtree(copy, ignore_errors=True)  # an earlier report's copy of what is now published
+        return published
+    copy.mkdir(parents=True, exist_ok=True)
+    for name in names:
+        if (run / name).exists():
+            shutil.copy2(run / name, copy / name)
+    return copy
+
+
+def _shown(folder: Path) -> str:
+    """A folder as the report names it: relative to the repository when inside it."""
+    try:
+        return folder.resolve().relative_to(paths.WORK).as_posix()
+    except ValueError:
+        return folder.as_posix()
+
+
 def write_outputs(cfg: StudyConfig, rows: list[dict], command: str, wall_s: float) -> Path:
     from mjendo import figures
 
@@ -566,18 +593,12 @@ def write_outputs(cfg: StudyConfig, rows: list[dict], command: str, wall_s: floa
     contact = contact_and_motion(per_cell)
     _csv(out / "contact_and_motion.csv", contact)
     _csv(out / "per_target.csv", per_target_rows(per_cell))
-    seeds_dir = out / "seeds"
-    for p, s in sorted({(r["controller"], int(r["seed_trained"])) for r in rows}):
-        d = seeds_dir / f"{p}_seed{s}"
-        d.mkdir(parents=True, exist_ok=True)
-        run = run_folder(cfg, p, s)
-        for name in (artifacts.META_FILE, results_file(cfg),
-                     per_stomach(VALIDATION_FILE, cfg.fidelity), "evaluations.csv"):
-            if (run / name).exists():
-                shutil.copy2(run / name, d / name)
-    fig = figures.study_seeds(summary, out / "seeds.png")
+    if cfg.ship_best:
+        publish(cfg)
     grid = sorted({(r["controller"], int(r["seed_trained"])) for r in rows})
-    curves = figures.study_curves({p: [seeds_dir / f"{q}_seed{s}" for q, s in grid if q == p]
+    records = {(p, s): seed_record(cfg, p, s) for p, s in grid}
+    fig = figures.study_seeds(summary, out / "seeds.png")
+    curves = figures.study_curves({p: [records[q, s] for q, s in grid if q == p]
                                    for p in dict.fromkeys(q for q, _ in grid)}, out / "curves.png")
     lines = [
         "# mjendo study: the paper's comparisons over training seeds", "",
@@ -638,8 +659,9 @@ def write_outputs(cfg: StudyConfig, rows: list[dict], command: str, wall_s: floa
             v = validate(cfg, p, run_folder(cfg, p, seed))
             mark = ("shipped" if cfg.ship_best else "yes") if best[p][0] == seed else ""
             lines.append(f"| {p} | {seed} | {100 * v['success_rate']:.1f} | {v['mean_final_mm']:.1f} | {mark} |")
-    if cfg.ship_best:
-        publish(cfg)
+    where = dict.fromkeys(_shown(records[g].parent) for g in grid)
+    lines += ["", "Each seed's meta, trials, validation and training curve: "
+              + ", ".join(f"`{w}/`" for w in where) + "."]
     lines += ["", f"![Success rate per seed (dots) and across seeds (bar, 95 % CI)]({fig.name})", "",
               "*Success rate of every training seed (dots) and the mean over seeds with its 95 % stratified-"
               "bootstrap interval (black), per environment.*", "",

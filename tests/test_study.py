@@ -349,3 +349,22 @@ def test_the_shipped_seed_is_in_git_once(tmp_path, monkeypatch):
     assert artifacts.model_home(published) == published
     with pytest.raises(artifacts.PolicyError, match="no policy file"):
         artifacts.load(published)
+
+
+def test_a_report_points_at_a_published_seed_instead_of_copying_it(tmp_path, monkeypatch):
+    # A seed's trials live in git once: the report's record of a published seed is its published folder;
+    # a seed that is not published (or published with other trials) is copied under <out>/seeds/.
+    from mjendo.study import StudyConfig, results_file, run_folder, seed_folder, seed_record
+
+    monkeypatch.setenv("MJENDO_POLICIES", str(tmp_path / "policies"))
+    cfg = StudyConfig(policies=("D",), seeds=(1,), runs=tmp_path / "runs", out=tmp_path / "out")
+    run, published = run_folder(cfg, "D", 1), seed_folder("D", 1)
+    for folder in (run, published):
+        folder.mkdir(parents=True)
+        (folder / results_file(cfg)).write_bytes(b"trials")
+        (folder / "evaluations.csv").write_text("timesteps,success_rate\n")
+    copy = tmp_path / "out" / "seeds" / "D_seed1"
+    copy.mkdir(parents=True)  # an earlier report's copy
+    assert seed_record(cfg, "D", 1) == published and not copy.exists()
+    (run / results_file(cfg)).write_bytes(b"other trials")
+    assert seed_record(cfg, "D", 1) == copy and (copy / results_file(cfg)).read_bytes() == b"other trials"

@@ -39,7 +39,7 @@ class TargetSampler:
     @property
     def active(self) -> bool:
         """Whether the draw differs from the paper's uniform one at some point of the run."""
-        return self.sampling != "uniform" or self.curriculum_steps > 0 or bool(np.ptp(self.base) > 0)
+        return self.sampling != "uniform" or self.curriculum_steps > 0 or bool(self.base.size and np.ptp(self.base) > 0)
 
     def record(self, target: int, success: bool, length: int) -> None:
         """One finished training episode: solved means reached within a trial (PAPER_EVAL_STEPS)."""

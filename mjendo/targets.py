@@ -70,6 +70,12 @@ class TargetTable:
         """The ids of a list, or of lists joined by '+' ('A+F'), in order, each id once."""
         return list(dict.fromkeys(i for part in name.split("+") for i in self.lists[part]))
 
+    def pool_weights(self, name: str) -> np.ndarray:
+        """Relative draw weight of each id of ``listed(name)``: each list of a joined pool ('A+F') is drawn
+        equally often, whatever its length (a single list: uniform)."""
+        share = {i: 1.0 / len(self.lists[p]) for p in reversed(name.split("+")) for i in self.lists[p]}
+        return np.array([share[i] for i in self.listed(name)])
+
     def contact_aided(self, ids) -> np.ndarray:
         """Whether each id is of the map's contact-aided class (all False for version 0's vertices)."""
         return self.classes[self.rows(ids)] == "contact_aided" if self.classes is not None \

@@ -110,7 +110,10 @@ class NavigationTask:
         self.contact_aided = table.contact_aided(self.targets)
         # The map's class of each listed target ("free", "contact_aided"; "" where the table has none: version 0).
         self.target_classes = table.classes[rows] if table.classes is not None else np.full(len(rows), "", object)
-        self.target_p: np.ndarray | None = None  # sampling probabilities of the list's targets; None: uniform
+        # sampling probabilities of the list's targets (None: uniform); a joined pool draws each list equally often
+        w = table.pool_weights(listname)
+        self._pool_p = None if np.ptp(w) == 0 else w / w.sum()
+        self.target_p = self._pool_p
         self.cable_step = from_mm(c.cable_mm_per_unit)
         self.insertion_step = from_mm(c.insertion_mm_per_unit)
         self.substeps = substeps(c)
@@ -205,9 +208,10 @@ class NavigationTask:
         sim.step(int(round(r.settle_s / sim.model.opt.timestep)))
 
     def set_target_weights(self, weights) -> None:
-        """Relative draw weight of each listed target, in list order (training's TargetSampler); None: uniform."""
+        """Relative draw weight of each listed target, in list order (training's TargetSampler); None: the
+        list's own draw (uniform; a joined pool: each list equally often)."""
         if weights is None:
-            self.target_p = None
+            self.target_p = self._pool_p
             return
         w = np.asarray(weights, float)
         if w.shape != self.targets.shape or not np.all(np.isfinite(w)) or w.min() < 0 or w.sum() <= 0:

@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from mjendo import artifacts, cli, paths, targets
+from mjendo import anatomy, artifacts, cli, paths, targets
 from mjendo.artifacts import MODEL_FILE, NORM_FILE, PolicyError, model_home
 from mjendo.config import FIDELITIES, PAPER_EVAL_STEPS, ConfigError, default_target_list
 from mjendo.sampling import TargetSampler
@@ -95,13 +95,13 @@ def periodic_evaluation(model, venv, cfg: TrainConfig, meta: dict) -> tuple[floa
 def target_sampler(cfg: TrainConfig, run: Path | None = None) -> TargetSampler:
     """The run's target sampler (TrainConfig.target_sampling), with the solve rates of its latest checkpoint."""
     task = cfg.task_config()
-    table = targets.load(task.version)
     name = cfg.train_targets or task.target_list or default_target_list(task.env, task.version)
+    if len(anatomy.members(task.anatomy)) > 1:  # each stomach's task draws its own list (and pool weights)
+        return TargetSampler([], [], cfg.target_sampling, cfg.curriculum_steps)
+    table = targets.load(task.version, targets.map_path(anatomy.stomach_dir(task.anatomy)))
     listed = table.listed(name)
-    # each list of a joined pool ('A+F') is drawn equally often, whatever its length
-    share = {i: 1.0 / len(table.lists[p]) for p in reversed(name.split("+")) for i in table.lists[p]}
     sampler = TargetSampler(listed, table.contact_aided(listed), cfg.target_sampling, cfg.curriculum_steps,
-                            base=[share[i] for i in listed])
+                            base=table.pool_weights(name))
     ckpt = latest_checkpoint(run) if run is not None else None
     if ckpt is not None:
         sampler.load(ckpt.parent / f"sampling_{CKPT_RE.fullmatch(ckpt.name).group(1)}.json")

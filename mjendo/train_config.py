@@ -20,7 +20,7 @@ from typing import Any
 
 import yaml
 
-from mjendo.config import CONDITIONS, FIDELITIES, POLICY_NAMES, ConfigError, TaskConfig, task_config
+from mjendo.config import ANATOMY_SETS, CONDITIONS, FIDELITIES, POLICY_NAMES, ConfigError, TaskConfig, task_config
 from mjendo.sampling import SAMPLINGS
 
 TASK_KEYS_SET_BY_POLICY = ("env", "fidelity", "force_obs")  # top-level fields of a policy entry
@@ -172,6 +172,9 @@ class TrainConfig:
                               f"backend {self.backend})")
         if self.target_sampling not in SAMPLINGS:
             raise ConfigError(f"target_sampling must be one of {', '.join(SAMPLINGS)}, not {self.target_sampling!r}")
+        if (self.target_sampling != "uniform" or self.curriculum_steps) and self.task.get("anatomy") in ANATOMY_SETS:
+            raise ConfigError(f"target_sampling {self.target_sampling!r} and curriculum_steps weigh one stomach's "
+                              f"targets: they need one anatomy, not the set {self.task['anatomy']!r}")
         for name in ("checkpoint_every", "eval_every", "eval_episodes"):
             if getattr(self, name) < 1:
                 raise ConfigError(f"{name} must be >= 1")

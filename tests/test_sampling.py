@@ -69,3 +69,27 @@ def test_a_joined_pool_draws_each_list_half_the_time_and_evaluations_keep_the_en
         task_config(target_list="A+A")
     with pytest.raises(ConfigError, match="unknown target_list 'A\\+Q'"):
         task_config(target_list="A+Q")
+
+
+def test_each_stomach_of_a_set_draws_its_own_joined_pool_half_and_half():
+    # Across stomachs the pool is each stomach's own list A and list F (training's sampler holds no list):
+    # the task itself draws each list equally often, and clearing the weights keeps that draw.
+    from mjendo import anatomy, targets
+    from mjendo.envs import EndoscopeEnv
+    from mjendo.paths import TRAINING_CONFIG
+    from mjendo.train import load_config, target_sampler
+
+    cfg = load_config("E", TRAINING_CONFIG, "randomized-free-pool")
+    assert cfg.task["anatomy"] == "train" and cfg.train_targets == "A+F" and not target_sampler(cfg).active
+    env = EndoscopeEnv("SE", anatomy="train", target_list="A+F")
+    table = targets.load(1, targets.map_path(anatomy.stomach_dir(env.anatomies[3])))
+    a = set(table.lists["A"])
+    assert len(a) < len(table.lists["F"]) / 2  # uniform over the union would draw list A under a third of the time
+    task = env.anatomy_task(3)
+    task.set_target_weights(None)
+    rng = np.random.default_rng(5)
+    drawn = [task.reset(rng) is not None and task.target for _ in range(300)]
+    assert 0.4 < np.mean([t in a for t in drawn]) < 0.6
+    env.close()
+    with pytest.raises(ConfigError, match="need one anatomy, not the set 'train'"):
+        load_config("E", TRAINING_CONFIG, "randomized-free-pool", target_sampling="adaptive")

@@ -165,6 +165,10 @@ def test_shipping_keeps_the_policy_and_drops_the_optimizer(short_run, tmp_path):
     last = json.loads((dest / "meta.json").read_text())["final_evaluation"]
     assert last["timesteps"] == 512 and 0.0 <= last["success_rate"] <= 1.0 and last["mean_final_mm"] > 0
     assert (dest / "model.zip").stat().st_size < 0.6 * (run / "model.zip").stat().st_size
+    import zipfile
+
+    with zipfile.ZipFile(dest / "model.zip") as z:  # deflated, not SB3's stored members
+        assert {i.compress_type for i in z.infolist()} == {zipfile.ZIP_DEFLATED}
     env = EndoscopeEnv("DE", force_obs=False)
     obs, _ = env.reset(seed=0)
     np.testing.assert_array_equal(PPOController.from_folder(dest).act(obs, env.task),

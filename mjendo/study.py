@@ -190,7 +190,8 @@ def adopt_shipped(cfg: StudyConfig, policy: str, seed: int) -> bool:
     Candidates: the seed's published folder (``models/policies/<P>/seeds/seed<N>/``, with its study
     trials, so a fresh clone re-reports the study without training or evaluating), then the shipped
     policy. The budget is the run's configured total_timesteps (the shipped one trained for 1M steps is
-    not a 2k-step smoke-test run).
+    not a 2k-step smoke-test run), and the policy it started from the run's init_from (a fine-tuned
+    variant's; none for a policy trained from scratch, so a policy fine-tuned in the full stomach is not).
     """
     from mjendo.train import latest_checkpoint
 
@@ -201,8 +202,8 @@ def adopt_shipped(cfg: StudyConfig, policy: str, seed: int) -> bool:
         meta = artifacts.read_meta(source) if (source / artifacts.META_FILE).exists() else {}
         if meta.get("seed") != seed or meta.get("training", {}).get("total_timesteps") != tc.total_timesteps:
             continue
-        if not _same_task(meta, tc.task_config()) or meta.get("init_from"):
-            continue
+        if not _same_task(meta, tc.task_config()) or meta.get("init_from") != tc.init_from:
+            continue  # a fine-tune is a variant's run only when it started where that variant starts
         run.mkdir(parents=True, exist_ok=True)
         for name in (artifacts.META_FILE, artifacts.CONFIG_FILE, artifacts.MODEL_FILE, artifacts.NORM_FILE,
                      *artifacts.LOG_FILES, *(f.name for f in study_files(source))):

@@ -324,6 +324,28 @@ def test_a_published_seed_is_adopted_with_its_study_trials(tmp_path, monkeypatch
     assert not adopt_shipped(StudyConfig(policies=("A",), seeds=(1,), runs=tmp_path / "runs"), "A", 1)
 
 
+def test_a_published_fine_tune_is_adopted_only_from_where_its_variant_starts(tmp_path, monkeypatch):
+    # A fine-tuned variant's published seed is its run when it started from the variant's init_from;
+    # one that started elsewhere (or a from-scratch policy with a fine-tune's meta) is not.
+    from mjendo import artifacts, paths
+    from mjendo.study import StudyConfig, adopt_shipped, seed_folder, train_config
+
+    monkeypatch.setenv("MJENDO_POLICIES", str(tmp_path / "policies"))
+    cfg = StudyConfig(policies=("E-short-horizon",), seeds=(0,), runs=tmp_path / "runs")
+    published = seed_folder("E-short-horizon", 0)
+    shutil.copytree(paths.MODELS / "policies" / "variants" / "E-short-horizon" / "seeds" / "seed0", published)
+    meta = artifacts.read_meta(published)
+    assert meta["init_from"] == train_config(cfg, "E-short-horizon", 0).init_from
+    artifacts.write_meta(published, {**meta, "init_from": "models/policies/E"})
+    assert not adopt_shipped(cfg, "E-short-horizon", 0)
+    artifacts.write_meta(published, meta)
+    assert adopt_shipped(cfg, "E-short-horizon", 0)
+    a = StudyConfig(policies=("A",), seeds=(0,), runs=tmp_path / "runs")
+    shutil.copytree(paths.MODELS / "policies" / "A", seed_folder("A", 0))
+    artifacts.write_meta(seed_folder("A", 0), {**artifacts.read_meta(seed_folder("A", 0)), "init_from": "x"})
+    assert not adopt_shipped(a, "A", 0)
+
+
 def test_the_shipped_seed_is_in_git_once(tmp_path, monkeypatch):
     # The shipped seed's published folder holds no model.zip or vecnormalize.pkl (they are the shipped
     # policy's): loading it, and adopting it as the study's run, take them from models/policies/<P>/.

@@ -78,7 +78,7 @@ class EndoscopeEnv(gym.Env):
     | ``force_obs`` | True | include contact indicator and force (policies C, E) |
     | ``scope_obs`` | False | include insertion depth and tip pose (not the paper's; train/policies.yaml variants) |
     | ``fidelity`` | "fast" | "fast" (reduced-order stomach) or "full" (per-vertex FEM) |
-    | ``target_list`` | the env's | "A" (training), "B" (held out), "F" (free-space targets: FE's own), or joined: "A+F" |
+    | ``target_list`` | the env's | "A" (training), "B" (held out), "F" (free-space targets: FE's own), or joined: "A+F" (each list drawn equally often) |
     | ``version`` | set by the id | task version (below) |
     | ``max_steps`` | 128 | truncation limit |
     | ``force_penalty`` | 0.0 | weight of the optional force penalty per newton |

@@ -181,6 +181,13 @@ def load(directory: Path) -> Policy:
 
     directory = Path(directory)
     path = model_home(directory) / MODEL_FILE
+    if not path.exists() and directory.parent.name == SEEDS_DIR and (directory / META_FILE).exists():
+        meta = read_meta(directory)
+        variant = meta.get("training", {}).get("variant")
+        raise PolicyError(f"{directory} is a published seed kept without its weights (its study trials are the "
+                          f"record): train it again with `python -m mjendo.train --policy {meta.get('policy')}"
+                          + (f" --variant {variant}" if variant else "") + f" --seed {meta.get('seed')}`, or "
+                          f"restore them from git history (`git log -- {directory}/{MODEL_FILE}`)")
     if not path.exists():
         raise PolicyError(f"no policy file at {path}: train one with `make train POLICY=...`, pass a folder "
                           "holding model.zip, or use task version 0's shipped ones (models/policies/v0/<P>)")

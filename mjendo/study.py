@@ -50,6 +50,7 @@ from mjendo.config import (
 from mjendo.evaluation import EVAL_SEED_BASE, cells, read_table, run_trials, write_table
 from mjendo.train_config import load as load_config
 
+ADOPTED_MARK = "ADOPTED"  # a run folder copied from a published seed (its trials; its weights when published)
 RESULTS_FILE = "study_trials.csv.gz"  # compressed (4x): every published seed carries its trials in git
 VALIDATION_FILE = "study_validation.json"
 
@@ -169,6 +170,27 @@ def finished(run: Path, budget: int) -> bool:
     return (run / artifacts.MODEL_FILE).exists() and int(meta.get("timesteps", 0)) >= budget
 
 
+def reportable(run: Path, budget: int) -> bool:
+    """Whether a run's cached trials may be reported as they are: a finished run, or a published seed
+    adopted without its weights (a variant's seed that nothing starts from: its trials are the record)."""
+    meta = artifacts.read_meta(run) if (run / artifacts.META_FILE).exists() else {}
+    return finished(run, budget) or ((run / ADOPTED_MARK).exists() and int(meta.get("timesteps", 0)) >= budget)
+
+
+def started_from(cfg: StudyConfig) -> set[Path]:
+    """The policy folders the training config's variants start from (their init_from), resolved."""
+    import yaml
+
+    raw = yaml.safe_load(Path(cfg.config).read_text()) or {}
+    found = set()
+    for block in (raw.get("variants") or {}).values():
+        src = (block or {}).get("init_from")
+        if src:
+            src = Path(src)
+            found.add((src if src.is_absolute() or src.exists() else paths.DATA / src).resolve())
+    return found
+
+
 def seed_folder(spec: str, seed: int) -> Path:
     """Where a published study seed lives: its policy files and its study trials (``--ship-best``); the
     shipped seed's model files are those of the shipped policy (artifacts.model_home)."""
@@ -211,7 +233,7 @@ def adopt_shipped(cfg: StudyConfig, policy: str, seed: int) -> bool:
             found = (artifacts.model_home(source) if model_file else source) / name
             if found.exists():
                 shutil.copy2(found, run / name)
-        (run / "ADOPTED").write_text(f"copied from {source} by mjendo.study: that policy is this seed's run\n")
+        (run / ADOPTED_MARK).write_text(f"copied from {source} by mjendo.study: that policy is this seed's run\n")
         return True
     return False
 
@@ -220,15 +242,21 @@ def publish(cfg: StudyConfig) -> None:
     """Ship each policy's best seed to models/policies/<P>/ (a variant's to models/policies/variants/<P>-<v>/)
     and every seed, with its study trials, to <that folder>/seeds/seed<N>/ (model without optimizer moments,
     normalisation, meta, config; the shipped seed's folder without model and normalisation, which are the
-    shipped policy's)."""
-    best = best_seeds(cfg)
+    shipped policy's). A variant's other seeds keep their weights only when a variant starts from them: the
+    rest are reported from their trials (the weights stay in git history), so the tree stays small."""
+    best, sources = best_seeds(cfg), started_from(cfg)
     for p in cfg.policies:
         for seed in cfg.seeds_of(p):
             run = run_folder(cfg, p, seed)
+            if not (run / artifacts.MODEL_FILE).exists():
+                continue  # adopted from its published folder without weights: that folder is its record
             dest = artifacts.ship(run, split_spec(p)[0], seed_folder(p, seed))
             for f in [run / "evaluations.csv", *study_files(run)]:
                 if f.exists():
                     shutil.copy2(f, dest / f.name)
+            if split_spec(p)[1] and seed != best[p][0] and dest.resolve() not in sources:
+                for name in (artifacts.MODEL_FILE, artifacts.NORM_FILE):
+                    (dest / name).unlink()
         artifacts.ship(run_folder(cfg, p, best[p][0]), split_spec(p)[0])
         for name in (artifacts.MODEL_FILE, artifacts.NORM_FILE):  # in git once: artifacts.model_home finds them
             (seed_folder(p, best[p][0]) / name).unlink(missing_ok=True)
@@ -284,7 +312,7 @@ def trial(cfg: StudyConfig, policy: str, seed: int) -> list[dict]:
     torch.set_num_threads(1)
     run = run_folder(cfg, policy, seed)
     cached = _read_results(run, cfg)
-    if cached is not None and finished(run, train_config(cfg, policy, seed).total_timesteps):
+    if cached is not None and reportable(run, train_config(cfg, policy, seed).total_timesteps):
         validate(cfg, policy, run)
         return cached
     run.mkdir(parents=True, exist_ok=True)
@@ -320,6 +348,10 @@ def validate(cfg: StudyConfig, policy: str, run: Path) -> dict:
         if (cached.get("fidelity"), cached.get("model"), cached.get("trials")) == (cfg.fidelity, model,
                                                                                    cfg.validation_trials):
             return cached
+    if not (artifacts.model_home(run) / artifacts.MODEL_FILE).exists():
+        raise ConfigError(f"{run} holds a published seed's trials without its weights, not the validation "
+                          "trials this study asks for: study it with the validation trials it was published "
+                          "with (--validation-trials), or delete the folder to train the seed again")
     seeds = [VALIDATION_SEED + i for i in range(cfg.validation_trials)]
     trials, _ = run_trials(str(run), tc.env, seeds, fidelity=cfg.fidelity, anatomy=trained_in)
     result = {"env": tc.env, "fidelity": cfg.fidelity, "model": model, "trials": len(trials),

@@ -369,7 +369,7 @@ def test_the_shipped_seed_is_in_git_once(tmp_path, monkeypatch):
     meta = artifacts.read_meta(published)
     artifacts.write_meta(published, {**meta, "wall_s": meta["wall_s"] + 1.0})
     assert artifacts.model_home(published) == published
-    with pytest.raises(artifacts.PolicyError, match="no policy file"):
+    with pytest.raises(artifacts.PolicyError, match="published seed kept without its weights.*--seed 0"):
         artifacts.load(published)
 
 
@@ -390,3 +390,25 @@ def test_a_report_points_at_a_published_seed_instead_of_copying_it(tmp_path, mon
     assert seed_record(cfg, "D", 1) == published and not copy.exists()
     (run / results_file(cfg)).write_bytes(b"other trials")
     assert seed_record(cfg, "D", 1) == copy and (copy / results_file(cfg)).read_bytes() == b"other trials"
+
+
+def test_a_variant_seed_published_without_weights_is_reported_from_its_trials(tmp_path, monkeypatch):
+    # A variant's non-shipped seed that no variant starts from is published with its trials, validation and
+    # meta only: the study reports it without training or evaluating, and loading it says how to get it back.
+    from mjendo import artifacts, paths
+    from mjendo.study import StudyConfig, adopt_shipped, run_folder, seed_folder, started_from, trial
+
+    cfg = StudyConfig(policies=("E-randomized",), seeds=(1,), anatomy="test", envs=("DE", "UE2"), trials=200,
+                      runs=tmp_path / "runs")
+    published = paths.MODELS / "policies" / "variants" / "E-randomized" / "seeds" / "seed1"
+    assert not (published / artifacts.MODEL_FILE).exists() and published.resolve() not in started_from(cfg)
+    assert (paths.MODELS / "policies" / "variants" / "E-curriculum-randomized" / "seeds" / "seed0").resolve() \
+        in started_from(cfg)  # randomized-free-pool starts there: those weights stay
+    monkeypatch.setenv("MJENDO_POLICIES", str(tmp_path / "policies"))
+    shutil.copytree(published, seed_folder("E-randomized", 1))
+    assert adopt_shipped(cfg, "E-randomized", 1)
+    rows = trial(cfg, "E-randomized", 1)
+    run = run_folder(cfg, "E-randomized", 1)
+    assert len(rows) == 400 and not (run / artifacts.MODEL_FILE).exists()  # nothing trained or evaluated
+    with pytest.raises(artifacts.PolicyError, match="without its weights.*--variant randomized --seed 1"):
+        artifacts.load(seed_folder("E-randomized", 1))

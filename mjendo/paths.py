@@ -30,6 +30,13 @@ RUNS = WORK / "runs"
 CACHE = Path(os.environ.get("MJENDO_CACHE", Path.home() / ".cache" / "mjendo"))
 
 
+def data_path(path: str | Path) -> Path:
+    """A path as given, or, when relative and absent from the working directory, one inside mjendo's data (a
+    config's ``init_from`` names a folder of the checkout or the installed wheel)."""
+    path = Path(path)
+    return path if path.is_absolute() or path.exists() else DATA / path
+
+
 def policies_dir() -> Path:
     """Shipped policies; the environment variable MJENDO_POLICIES points evaluation and viewer elsewhere."""
     return Path(os.environ.get("MJENDO_POLICIES", MODELS / "policies"))

@@ -182,13 +182,8 @@ def started_from(cfg: StudyConfig) -> set[Path]:
     import yaml
 
     raw = yaml.safe_load(Path(cfg.config).read_text()) or {}
-    found = set()
-    for block in (raw.get("variants") or {}).values():
-        src = (block or {}).get("init_from")
-        if src:
-            src = Path(src)
-            found.add((src if src.is_absolute() or src.exists() else paths.DATA / src).resolve())
-    return found
+    return {paths.data_path(b["init_from"]).resolve() for b in (raw.get("variants") or {}).values()
+            if (b or {}).get("init_from")}
 
 
 def seed_folder(spec: str, seed: int) -> Path:
@@ -595,9 +590,11 @@ def seed_record(cfg: StudyConfig, policy: str, seed: int) -> Path:
     run, published = run_folder(cfg, policy, seed), seed_folder(policy, seed)
     names = (artifacts.META_FILE, results_file(cfg), per_stomach(VALIDATION_FILE, cfg.fidelity), "evaluations.csv")
     copy = Path(cfg.out) / "seeds" / f"{policy}_seed{seed}"
-    if all((run / n).exists() == (published / n).exists() and (not (run / n).exists() or
-           filecmp.cmp(run / n, published / n, shallow=False)) for n in names[1:]) \
-            and (published / results_file(cfg)).exists():
+    def same(name: str) -> bool:  # both absent, or both there byte for byte
+        a, b = run / name, published / name
+        return a.exists() == b.exists() and (not a.exists() or filecmp.cmp(a, b, shallow=False))
+
+    if (published / results_file(cfg)).exists() and all(same(n) for n in names[1:]):
         shutil.rmtree(copy, ignore_errors=True)  # an earlier report's copy of what is now published
         return published
     copy.mkdir(parents=True, exist_ok=True)

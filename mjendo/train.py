@@ -258,10 +258,7 @@ def _start_from(cfg: TrainConfig, venv):
     from stable_baselines3 import PPO
     from stable_baselines3.common.vec_env import VecNormalize
 
-    src = Path(cfg.init_from)
-    if not src.is_absolute() and not src.exists():  # a config's relative path names a folder of mjendo's data
-        src = paths.DATA / src
-    src = model_home(src)
+    src = model_home(paths.data_path(cfg.init_from))
     if not (src / MODEL_FILE).exists():
         raise ConfigError(f"init_from {src} holds no {MODEL_FILE}; give a policy folder such as "
                           "models/policies/E or a finished run folder")

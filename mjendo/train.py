@@ -262,6 +262,12 @@ def _start_from(cfg: TrainConfig, venv):
     if not (src / MODEL_FILE).exists():
         raise ConfigError(f"init_from {src} holds no {MODEL_FILE}; give a policy folder such as "
                           "models/policies/E or a finished run folder")
+    have, want = artifacts.obs_options(src), {"force_obs": cfg.force_obs, "scope_obs": cfg.task_config().scope_obs}
+    if have != want:
+        if have["force_obs"] != want["force_obs"] or have["scope_obs"]:
+            raise ConfigError(f"init_from {src} observes {have}, this run {want}: a fine-tune keeps the force "
+                              "observation, and can only add the scope's state (scope_obs), not drop it")
+        return _widened_start(cfg, venv, src)
     if cfg.normalize:
         venv = VecNormalize.load(str(src / NORM_FILE), venv)  # keeps adapting to the new stomach
         venv.training = True
@@ -274,6 +280,22 @@ def _start_from(cfg: TrainConfig, venv):
                      n_steps=p.n_steps, batch_size=p.batch_size, n_epochs=p.n_epochs, gamma=p.gamma,
                      gae_lambda=p.gae_lambda, clip_range=p.clip_range, ent_coef=p.ent_coef)
     model.num_timesteps = 0  # this run's budget counts from here
+    return model
+
+
+def _widened_start(cfg: TrainConfig, venv, src: Path):
+    """A PPO that also observes the scope's state, acting at first exactly as the policy in ``src``."""
+    from stable_baselines3 import PPO
+
+    from mjendo.widen import widen_state, widened_normalizer
+
+    source = PPO.load(str(src / MODEL_FILE), device=torch_device(cfg))
+    model = build_ppo(cfg, venv)
+    n = source.observation_space.shape[0]
+    model.policy.load_state_dict(widen_state(source.policy.state_dict(), model.policy.state_dict(), n))
+    if cfg.normalize:
+        model.set_env(widened_normalizer(src / NORM_FILE, venv, cfg.ppo.gamma, model))
+    print(f"widened {src}: {n} inputs -> {model.observation_space.shape[0]} (the scope's state, zero weights)")
     return model
 
 

@@ -342,3 +342,45 @@ def test_same_seed_same_machine_trains_bit_identical_weights(short_run, tmp_path
     assert all(torch.equal(a[k], b[k]) for k in a)
     ea, eb = ((r / "episodes.csv").read_text() for r in runs)
     assert ea == eb
+
+
+def test_a_fine_tune_that_adds_the_scope_state_starts_acting_and_valuing_as_its_source(monkeypatch):
+    # randomized-scope widens a 15-input policy to 22 inputs: until training weighs the new inputs it must be
+    # the source, step for step in the real simulator (random new weights would make it a different policy).
+    import pickle
+
+    import torch
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    from mjendo import train as train_module
+    from mjendo import widen
+
+    monkeypatch.setattr(widen, "STAT_STEPS", 256)
+    cfg = load_config("E", TRAINING_CONFIG, "randomized-scope", n_envs=2)
+    model = train_module._start_from(cfg, DummyVecEnv([train_module.make_env(cfg, i) for i in range(2)]))
+    src_dir = mjendo.paths.DATA / cfg.init_from
+    source = PPO.load(str(src_dir / "model.zip"), device="cpu")
+    with open(src_dir / "vecnormalize.pkl", "rb") as f:
+        src_norm = pickle.load(f)
+    norm = model.get_env()
+    assert model.observation_space.shape == (22,) and source.observation_space.shape == (15,)
+    insertion_mean, insertion_std = norm.obs_rms.mean[15], np.sqrt(norm.obs_rms.var[15])
+    assert 0.0 < insertion_mean < 160.0 and insertion_std > 1.0  # measured, in mm, not left at 0 / 1
+    obs, moved = norm.reset(), 0.0
+    for _ in range(20):
+        raw = norm.get_original_obs()
+        own = np.clip((raw[:, :15] - src_norm.obs_rms.mean) / np.sqrt(src_norm.obs_rms.var + src_norm.epsilon),
+                      -src_norm.clip_obs, src_norm.clip_obs).astype(np.float32)
+        act, _ = model.predict(obs, deterministic=True)
+        np.testing.assert_allclose(act, source.predict(own, deterministic=True)[0], atol=1e-4)
+        with torch.no_grad():
+            v_new = model.policy.predict_values(torch.as_tensor(obs, dtype=torch.float32))
+            v_src = source.policy.predict_values(torch.as_tensor(own))
+        np.testing.assert_allclose(v_new.numpy(), v_src.numpy(), rtol=1e-4, atol=1e-3)
+        obs, *_ = norm.step(act)
+        moved = max(moved, float(np.abs(raw[:, 15]).max()))
+    assert moved > 10.0  # the scope went in: the new inputs changed while the actions stayed the source's
+    d = load_config("D", TRAINING_CONFIG, init_from="models/policies/E")
+    with pytest.raises(ConfigError, match="keeps the force observation"):
+        train_module._start_from(d, DummyVecEnv([train_module.make_env(d, 0)]))

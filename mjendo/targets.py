@@ -36,7 +36,14 @@ from pathlib import Path
 import numpy as np
 
 from mjendo import anatomy, cli, paths
-from mjendo.config import ANATOMY_SETS, CURRENT_VERSION, PAPER_EVAL_STEPS, PAPER_SUCCESS_MM, ConfigError
+from mjendo.config import (
+    ANATOMY_SETS,
+    CURRENT_VERSION,
+    FIDELITIES,
+    PAPER_EVAL_STEPS,
+    PAPER_SUCCESS_MM,
+    ConfigError,
+)
 from mjendo.units import from_mm, to_mm
 
 MAP_NAME = "targets.json"  # a stomach's map; the committed ones are gzip-compressed (MAP_NAME + ".gz", 7x smaller)
@@ -394,21 +401,45 @@ def _listed_aided(list_name: str, path: Path) -> tuple[dict, list[int]]:
     return points, [i for i in meta["lists"][list_name] if points[i]["class"] == "contact_aided"]
 
 
-def arrival_steps(list_name: str, path: Path = TARGETS_FILE) -> dict[int, list[int | None]]:
+def arrival_steps(list_name: str, path: Path = TARGETS_FILE, fidelity: str = "fast") -> dict[int, list[int | None]]:
     """Step (1-80) at which each listed contact-aided point's recorded demonstrator first comes within the
     success distance, in SE and from each DE load phase (None: not within the trial). The recorded one is
     the demonstrator that came closest, not necessarily the fastest: an upper bound on the time a known
-    way there needs, so on how little slack a policy has."""
+    way there needs, so on how little slack a policy has. In the full stomach (the map is measured in the
+    fast one) the same motions show how much sooner or later the tip slides there."""
     from mjendo.task import NavigationTask
 
     points, listed = _listed_aided(list_name, path)
     steps: dict[int, list[int | None]] = {i: [] for i in listed}
     for run, (env, phase) in enumerate([("SE", None)] + [("DE", p) for p in range(PHASES)]):
-        task = NavigationTask(env=env, target_list=list_name, max_steps=10**6, randomize_phase=False)
+        task = NavigationTask(env=env, target_list=list_name, max_steps=10**6, randomize_phase=False,
+                              fidelity=fidelity)
         start = None if phase is None else phase * len(task.start_states) // PHASES
         for i in listed:
             steps[i].append(replay_demo(task, DEMOS[points[i]["demos"][run]], i, start)[0])
+        where = env if phase is None else f"{env} phase {phase}"
+        print(f"  {fidelity} {where}: {len(listed)} demonstrators replayed ({run + 1}/{1 + PHASES})", flush=True)
     return steps
+
+
+def _slack_report(list_name: str, fidelity: str) -> str:
+    """``slack``'s summary; for the full stomach also each trial's arrival against the fast stomach's."""
+    steps = arrival_steps(list_name, fidelity=fidelity)
+    latest = [max(s) if None not in s else None for s in steps.values()]
+    arrived = np.array([s for s in latest if s is not None])
+    lines = [f"list {list_name}, {fidelity} stomach: {len(latest)} contact-aided targets; the demonstrator arrives "
+             f"(latest of SE and the {PHASES} DE phases) by step {TRIAL_STEPS} at {len(arrived)}; median step "
+             f"{np.median(arrived):.0f}, quartiles {np.percentile(arrived, 25):.0f}-"
+             f"{np.percentile(arrived, 75):.0f}, after step 70 at {np.mean(arrived > 70):.0%}"]
+    if fidelity != "fast":
+        fast = arrival_steps(list_name)
+        pairs = [(a, b) for i in steps for a, b in zip(fast[i], steps[i], strict=True) if a is not None]
+        both = np.array([(a, b) for a, b in pairs if b is not None])
+        late = both[:, 1] - both[:, 0]
+        lines.append(f"the same motions, {len(pairs)} trials that arrive in the fast stomach: {len(both)} arrive "
+                     f"within the trial in the {fidelity} one, {np.median(late):+.0f} steps later (median; "
+                     f"quartiles {np.percentile(late, 25):+.0f} to {np.percentile(late, 75):+.0f})")
+    return "\n".join(lines)
 
 
 def open_loop(list_name: str, env: str = "DE", phases: int = 8, hold_load: bool = False,
@@ -605,6 +636,8 @@ def main(argv: list[str] | None = None) -> int:
     f.add_argument("--out", type=Path, default=paths.DATA / "docs" / "media" / "targets.png")
     sl = sub.add_parser("slack", help="the step at which each listed contact-aided target's demonstrator arrives")
     sl.add_argument("--list", default="A", choices=("A", "B"))
+    sl.add_argument("--fidelity", default="fast", choices=tuple(FIDELITIES),
+                    help="full: the same motions in the FEM stomach (about 40 min on one core)")
     ol = sub.add_parser("open-loop", help="each listed contact-aided target's static-stomach demonstrator replayed "
                         "unchanged from phases of the moving stomach: does the plan survive the wall's motion")
     ol.add_argument("--list", default="A", choices=("A", "B"))
@@ -622,12 +655,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"wrote {figure(args.out)}")
             return
         if args.cmd == "slack":
-            latest = [max(s) if None not in s else None for s in arrival_steps(args.list).values()]
-            arrived = np.array([s for s in latest if s is not None])
-            print(f"list {args.list}: {len(latest)} contact-aided targets; the demonstrator arrives (latest of SE and "
-                  f"the {PHASES} DE phases) by step {TRIAL_STEPS} at {len(arrived)}; median step "
-                  f"{np.median(arrived):.0f}, quartiles {np.percentile(arrived, 25):.0f}-"
-                  f"{np.percentile(arrived, 75):.0f}, after step 70 at {np.mean(arrived > 70):.0%}")
+            print(_slack_report(args.list, args.fidelity))
             return
         if args.cmd == "open-loop":
             closest = open_loop(args.list, args.env, args.phases, args.hold_load)

@@ -146,6 +146,19 @@ def test_slack_replays_each_demonstrator_to_its_first_arrival(tmp_path):
         assert 30 <= min(per_run) and max(per_run) <= targets.TRIAL_STEPS, (point, per_run)
 
 
+@pytest.mark.slow
+def test_slack_in_the_full_stomach_replays_the_same_motions(tmp_path):
+    # The fast stomach's demonstrators in the FEM one: one result per start, and no arrival sooner than 30 steps
+    # (the target lies deeper than 75 mm of full-speed insertion whichever stomach holds it).
+    meta = targets.read_map(targets.TARGETS_FILE)
+    meta["lists"]["A"] = aided("A")[:1]
+    path = tmp_path / "targets.json"
+    path.write_text(json.dumps(meta))
+    (point, per_run), = targets.arrival_steps("A", path, fidelity="full").items()
+    assert point == aided("A")[0] and len(per_run) == 1 + targets.PHASES
+    assert all(s is None or 30 <= s <= targets.TRIAL_STEPS for s in per_run), per_run
+
+
 def test_open_loop_replays_the_static_plan_from_load_phases_of_the_moving_stomach(tmp_path):
     # Two of list A's contact-aided targets, their SE demonstrator replayed unchanged from two opposite load
     # phases of DE: the plan still heads for the target (within 15 mm), but the moving wall makes the two

@@ -406,7 +406,7 @@ def arrival_steps(list_name: str, path: Path = TARGETS_FILE, fidelity: str = "fa
     success distance, in SE and from each DE load phase (None: not within the trial). The recorded one is
     the demonstrator that came closest, not necessarily the fastest: an upper bound on the time a known
     way there needs, so on how little slack a policy has. In the full stomach (the map is measured in the
-    fast one) the same motions show how much sooner or later the tip slides there."""
+    fast one) the same motions show whether, and when, the FEM wall lets the tube get there too."""
     from mjendo.task import NavigationTask
 
     points, listed = _listed_aided(list_name, path)
@@ -427,18 +427,22 @@ def _slack_report(list_name: str, fidelity: str) -> str:
     steps = arrival_steps(list_name, fidelity=fidelity)
     latest = [max(s) if None not in s else None for s in steps.values()]
     arrived = np.array([s for s in latest if s is not None])
-    lines = [f"list {list_name}, {fidelity} stomach: {len(latest)} contact-aided targets; the demonstrator arrives "
-             f"(latest of SE and the {PHASES} DE phases) by step {TRIAL_STEPS} at {len(arrived)}; median step "
-             f"{np.median(arrived):.0f}, quartiles {np.percentile(arrived, 25):.0f}-"
-             f"{np.percentile(arrived, 75):.0f}, after step 70 at {np.mean(arrived > 70):.0%}"]
+    line = (f"list {list_name}, {fidelity} stomach: {len(latest)} contact-aided targets; the demonstrator arrives "
+            f"(latest of SE and the {PHASES} DE phases) by step {TRIAL_STEPS} at {len(arrived)}")
+    if len(arrived):
+        line += (f"; median step {np.median(arrived):.0f}, quartiles {np.percentile(arrived, 25):.0f}-"
+                 f"{np.percentile(arrived, 75):.0f}, after step 70 at {np.mean(arrived > 70):.0%}")
+    lines = [line]
     if fidelity != "fast":
         fast = arrival_steps(list_name)
         pairs = [(a, b) for i in steps for a, b in zip(fast[i], steps[i], strict=True) if a is not None]
-        both = np.array([(a, b) for a, b in pairs if b is not None])
-        late = both[:, 1] - both[:, 0]
-        lines.append(f"the same motions, {len(pairs)} trials that arrive in the fast stomach: {len(both)} arrive "
-                     f"within the trial in the {fidelity} one, {np.median(late):+.0f} steps later (median; "
-                     f"quartiles {np.percentile(late, 25):+.0f} to {np.percentile(late, 75):+.0f})")
+        late = np.array([b - a for a, b in pairs if b is not None])
+        line = (f"the same motions, {len(pairs)} trials that arrive in the fast stomach: {len(late)} arrive within "
+                f"the trial in the {fidelity} one")
+        if len(late):
+            line += (f", {np.median(late):+.0f} steps later (median; quartiles {np.percentile(late, 25):+.0f} to "
+                     f"{np.percentile(late, 75):+.0f})")
+        lines.append(line)
     return "\n".join(lines)
 
 

@@ -146,6 +146,20 @@ def test_slack_replays_each_demonstrator_to_its_first_arrival(tmp_path):
         assert 30 <= min(per_run) and max(per_run) <= targets.TRIAL_STEPS, (point, per_run)
 
 
+def test_slack_report_compares_the_full_stomach_trial_by_trial_even_when_nothing_arrives(monkeypatch):
+    # The full stomach may bring no motion in within the trial: the report must say so, not fail on an empty median.
+    fast = {1: [60, 61, 62, 63, 64], 2: [70, 71, 72, 73, 74]}
+    full = {1: [None, 63, None, 65, 64], 2: [None] * 5}
+    monkeypatch.setattr(targets, "arrival_steps", lambda name, fidelity="fast": full if fidelity == "full" else fast)
+    report = targets._slack_report("A", "full")
+    assert "by step 80 at 0" in report and "10 trials that arrive in the fast stomach: 3 arrive" in report
+    assert "+2 steps later" in report  # median of (63-61, 65-63, 64-64) = median(2, 2, 0)
+    monkeypatch.setattr(targets, "arrival_steps", lambda name, fidelity="fast": {1: [None] * 5} if fidelity == "full"
+                        else {1: fast[1]})
+    assert targets._slack_report("A", "full").endswith("5 trials that arrive in the fast stomach: 0 arrive within "
+                                                       "the trial in the full one")
+
+
 @pytest.mark.slow
 def test_slack_in_the_full_stomach_replays_the_same_motions(tmp_path):
     # The fast stomach's demonstrators in the FEM one: one result per start, and no arrival sooner than 30 steps

@@ -517,6 +517,9 @@ class TaskConfig:
     insertion_mm_per_unit: float | None = None
     force_ref_n: float = 1.0  # the observation's force is force / force_ref
     force_penalty: float = 0.0  # optional safety term: -force_penalty * |F| (N) per step
+    # Weight of the paper's distance term (-distance_weight * mm per step); the paper's is 1. Below 1 the
+    # success bonus outweighs the path's distances: a training choice (variants), success is measured alike.
+    distance_weight: float = 1.0
     randomize_phase: bool = True  # start each episode at a random phase of the load
     # Per-episode tissue, load and friction and sensor noise (Randomization); None: the built-in stomach.
     # task_config also takes True (the default ranges) or a dict of Randomization fields.
@@ -568,6 +571,7 @@ def task_config(**kw) -> TaskConfig:
     for name in ("control_period_s", "cable_mm_per_unit", "insertion_mm_per_unit", "force_ref_n"):
         _finite(name, getattr(cfg, name), 0.0, strict=True)
     _finite("force_penalty", cfg.force_penalty, 0.0, strict=False)
+    _finite("distance_weight", cfg.distance_weight, 0.0, strict=False)
     cfg = replace(cfg, randomization=_randomization(cfg.randomization))
     if cfg.anatomy is not None:
         _anatomy(cfg)

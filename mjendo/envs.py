@@ -61,7 +61,7 @@ class EndoscopeEnv(gym.Env):
 
     | term | value |
     |---|---|
-    | distance | ``-||P_EE - P_target||`` in mm, every step |
+    | distance | ``-||P_EE - P_target||`` in mm, every step (times ``distance_weight``, 1 by default) |
     | success | ``+1e4`` when the distance is below 3 mm (episode terminates) |
     | exit | ``-1e4`` when the tip leaves the stomach through the cardia, x_EE < 15 mm (terminates) |
     | force | ``-force_penalty * |F|`` (N), 0 by default (optional safety term) |
@@ -82,6 +82,7 @@ class EndoscopeEnv(gym.Env):
     | ``version`` | set by the id | task version (below) |
     | ``max_steps`` | 128 | truncation limit |
     | ``force_penalty`` | 0.0 | weight of the optional force penalty per newton |
+    | ``distance_weight`` | 1.0 | weight of the distance term (the paper's: 1; not the paper's below it: train/policies.yaml variants) |
     | ``randomize_phase`` | True | start each episode at a random phase of the periodic load (False: phase 0) |
     | ``anatomy`` | None | the stomach: None built-in; a seed (generated, ``anatomy.generate``); "train" or "test" (``config.ANATOMY_SETS``, one drawn per episode; ``reset(options={"anatomy_index": k})`` picks one); a folder you built |
     | ``randomization`` | None | per-episode tissue stiffness and damping, load amplitude, period and direction, friction and sensor noise: True for the ranges of ``config.Randomization`` (sourced there), or a dict of its fields |

@@ -31,7 +31,7 @@ def outcome(cfg: TaskConfig, tip, target, origin, axis, force, steps, ok) -> dic
     force_n = _norm(force)
     live = ok * 1.0
     terms = {
-        "reward_distance": -dist * live,
+        "reward_distance": -cfg.distance_weight * dist * live,
         "reward_success": PAPER_BONUS * success,
         "reward_exit": -PAPER_BONUS * exited,
         "reward_force": -cfg.force_penalty * force_n * live,

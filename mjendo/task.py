@@ -134,6 +134,7 @@ class NavigationTask:
         self.prev_axial = 0.0
         self.steps = 0
         self.peak_force = 0.0
+        self.start_index = 0
         self.contact = self.sim.contact()  # a valid reading before the first reset (dm_env asks specs first)
         # This episode's drawn tissue, load and friction (cfg.randomization), and its sensor-noise stream.
         self.episode_params: dict | None = None
@@ -180,6 +181,7 @@ class NavigationTask:
         """Start an episode: settled stomach, straight scope, a random target; ``phase`` picks the start state."""
         sim = self.sim
         k = phase if phase is not None else int(rng.integers(len(self._starts))) if self.cfg.randomize_phase else 0
+        self.start_index = k  # which start state (load phase) this episode began from
         mujoco.mj_setState(sim.model, sim.data, self._starts[k], mujoco.mjtState.mjSTATE_INTEGRATION)
         sim.clear_warnings()  # counts belong to the previous episode
         self.pulls[:] = 0.0

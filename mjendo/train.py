@@ -54,7 +54,12 @@ def make_env(cfg: TrainConfig, rank: int, max_steps: int | None = None):
         kw = {**asdict(task), "max_steps": max_steps or task.max_steps}
         if cfg.train_targets:  # training draws from its own pool; periodic evaluations keep the env's list
             kw["target_list"] = cfg.train_targets
-        env = Monitor(EndoscopeEnv(**kw), info_keywords=("is_success", "distance_mm"))
+        env = EndoscopeEnv(**kw)
+        if cfg.guide_steps:  # training's episodes (the periodic evaluation builds its own environment)
+            from mjendo.demonstrations import GuidedStarts
+
+            env = GuidedStarts(env)
+        env = Monitor(env, info_keywords=("is_success", "distance_mm"))
         env.reset(seed=cfg.seed * 1000 + rank)
         return env
 
@@ -133,6 +138,8 @@ def _callbacks(cfg: TrainConfig, run: Path, meta: dict, start_steps: int, progre
         def _on_rollout_start(self) -> None:
             if self.sampler.active:  # how often each target is drawn (TrainConfig.target_sampling, curriculum)
                 self.training_env.env_method("set_target_weights", self.sampler.weights(self.num_timesteps))
+            if cfg.guide_steps:  # guided starts (mjendo.demonstrations): the most demonstrator steps, falling to 0
+                self.training_env.env_method("set_guide_steps", guide_limit(cfg, self.num_timesteps))
 
         def _on_step(self) -> bool:
             for info in self.locals["infos"]:
@@ -173,6 +180,12 @@ def _callbacks(cfg: TrainConfig, run: Path, meta: dict, start_steps: int, progre
             self.bar.close()
 
     return Training()
+
+
+def guide_limit(cfg: TrainConfig, timesteps: int) -> int:
+    """The most demonstrator steps an episode may begin with at this point of training (TrainConfig.guide_steps)."""
+    decay = cfg.guide_decay_steps or cfg.total_timesteps
+    return int(round(cfg.guide_steps * max(0.0, 1.0 - timesteps / decay)))
 
 
 def checkpoints(run: Path) -> list[tuple[int, Path]]:

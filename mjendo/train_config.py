@@ -145,6 +145,11 @@ class TrainConfig:
     target_sampling: str = "uniform"
     """how training draws targets: 'uniform' (the paper) or 'adaptive' (more often the less reliably the policy
     reaches them within a trial; mjendo.sampling). The batched backend draws uniformly"""
+    guide_steps: int = 0
+    """episodes aimed at a contact-aided target begin with up to this many steps of the map's demonstrator, drawn
+    uniformly from 0 (0: none; mjendo.demonstrations); the maximum falls linearly to 0 at guide_decay_steps"""
+    guide_decay_steps: int = 0
+    """steps after which training is unguided (0: the whole budget)"""
 
     def task_config(self) -> TaskConfig:
         """The task this run trains in (validated)."""
@@ -175,6 +180,9 @@ class TrainConfig:
         if (self.target_sampling != "uniform" or self.curriculum_steps) and self.task.get("anatomy") in ANATOMY_SETS:
             raise ConfigError(f"target_sampling {self.target_sampling!r} and curriculum_steps weigh one stomach's "
                               f"targets: they need one anatomy, not the set {self.task['anatomy']!r}")
+        if self.guide_steps < 0 or self.guide_decay_steps < 0 or (self.guide_steps and self.backend == "warp"):
+            raise ConfigError(f"guide_steps and guide_decay_steps must be >= 0, and guided starts need the cpu "
+                              f"backend (got {self.guide_steps}, {self.guide_decay_steps}, backend {self.backend})")
         for name in ("checkpoint_every", "eval_every", "eval_episodes"):
             if getattr(self, name) < 1:
                 raise ConfigError(f"{name} must be >= 1")

@@ -88,6 +88,17 @@ def test_reward_is_minus_distance_on_ordinary_steps():
     assert np.linalg.norm(obs[:3]) == pytest.approx(info["distance_mm"], rel=1e-4)
 
 
+def test_distance_weight_scales_the_distance_term_and_nothing_else():
+    paper, light = EndoscopeEnv("DE"), EndoscopeEnv("DE", distance_weight=0.1)
+    paper.reset(seed=3)
+    light.reset(seed=3)
+    for _ in range(5):
+        _, r1, _, _, i1 = paper.step(np.array([0.2, 0, 0, 0, 0.4]))
+        _, r2, _, _, i2 = light.step(np.array([0.2, 0, 0, 0, 0.4]))
+        assert i2["distance_mm"] == pytest.approx(i1["distance_mm"])  # the same physics
+        assert r2 == pytest.approx(0.1 * r1) and i2["reward_distance"] == pytest.approx(-0.1 * i1["distance_mm"])
+
+
 def test_success_bonus_fires_and_terminates():
     env = EndoscopeEnv("FE")
     env.reset(seed=0)
@@ -368,6 +379,7 @@ BAD_TASK_ARGS = [
     ({"force_penalty": float("inf")}, "force_penalty must be a finite number"),
     ({"force_penalty": -1.0}, "force_penalty must be a finite number >= 0"),
     ({"force_ref_n": 0.0}, "force_ref_n must be a finite number > 0"),
+    ({"distance_weight": -1.0}, "distance_weight must be a finite number >= 0"),
     ({"cable_mm_per_unit": float("nan")}, "cable_mm_per_unit must be a finite number"),
     ({"insertion_mm_per_unit": float("inf")}, "insertion_mm_per_unit must be a finite number"),
     ({"force_obs": "false"}, "force_obs must be True or False"),

@@ -45,11 +45,11 @@ class PolicyError(ValueError):
     """A policy cannot be loaded or does not fit the task; the message names the file and what to do."""
 
 
-def observation_layout(force_obs: bool, scope_obs: bool = False) -> list[dict]:
+def observation_layout(cfg: TaskConfig) -> list[dict]:
     """(name, size, unit) of each observation block, in order: what a policy's input means."""
-    from mjendo.task import obs_blocks
+    from mjendo.task import obs_blocks, obs_options
 
-    return [{"name": n, "size": k, "unit": u} for n, k, u, _ in obs_blocks(force_obs, scope_obs)]
+    return [{"name": n, "size": k, "unit": u} for n, k, u, _ in obs_blocks(**obs_options(cfg))]
 
 
 def commit() -> str | None:
@@ -74,7 +74,7 @@ def task_meta(cfg: TaskConfig) -> dict:
     from mjendo import targets
     from mjendo.scene import fingerprint
 
-    return {"format": FORMAT, "task": asdict(cfg), "observation": observation_layout(cfg.force_obs, cfg.scope_obs),
+    return {"format": FORMAT, "task": asdict(cfg), "observation": observation_layout(cfg),
             "mjendo_version": mjendo.__version__, "scene_fingerprint": fingerprint(cfg.fidelity, cfg.version),
             "targets_fingerprint": targets.fingerprint(cfg.version), "commit": commit()}
 
@@ -249,13 +249,13 @@ def resolve(spec: str) -> Path:
 
 
 def obs_options(directory: Path) -> dict[str, bool]:
-    """The observation options (force_obs, scope_obs) of the policy in ``directory``: its meta, else its input size."""
+    """The observation options (task.OBS_OPTIONS) of the policy in ``directory``: its meta, else its input size."""
+    from mjendo.task import OBS_OPTIONS, obs_size
+
     task = read_meta(directory).get("task", {})
     if "force_obs" in task:
-        return {"force_obs": bool(task["force_obs"]), "scope_obs": bool(task.get("scope_obs", False))}
-    from mjendo.task import obs_size
-
-    return {"force_obs": load(directory).n_obs == obs_size(True), "scope_obs": False}
+        return {k: bool(task.get(k, False)) for k in OBS_OPTIONS}
+    return {k: k == "force_obs" and load(directory).n_obs == obs_size(True) for k in OBS_OPTIONS}
 
 
 def slim_copy(src: Path, dest: Path) -> None:

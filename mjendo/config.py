@@ -508,6 +508,10 @@ class TaskConfig:
     # Insertion depth, tip position and tip axis: more of the scope's state than the paper's policies
     # see (a real robot knows its insertion; the tip pose comes from the tracker that ee_to_target needs).
     scope_obs: bool = False
+    # The share of the trial still left (Pardo et al. 2018, "Time Limits in Reinforcement Learning": under a fixed
+    # limit a policy that does not see the time cannot know how much is left). With it the limit is part of the
+    # MDP: reaching max_steps terminates the episode instead of truncating it.
+    time_obs: bool = False
     target_list: str | None = None  # None: the environment's own list (A or B); "A+F": lists joined
     max_steps: int = PAPER_TRAIN_STEPS
     version: int = CURRENT_VERSION  # task version (VERSIONS): scope, gravity, time scales, targets
@@ -559,7 +563,7 @@ def task_config(**kw) -> TaskConfig:
     ver = task_version(int(cfg.version))
     cfg = replace(cfg, version=int(cfg.version), **{k: getattr(ver, k) for k in ACTION_SCALES
                                                     if getattr(cfg, k) is None})
-    for name in ("force_obs", "scope_obs", "randomize_phase"):
+    for name in ("force_obs", "scope_obs", "time_obs", "randomize_phase"):
         if not isinstance(getattr(cfg, name), bool | np.bool_):
             raise ConfigError(f"{name} must be True or False, not {getattr(cfg, name)!r}")
     parts = cfg.target_list.split("+") if isinstance(cfg.target_list, str) else [cfg.target_list]
@@ -575,7 +579,7 @@ def task_config(**kw) -> TaskConfig:
     cfg = replace(cfg, randomization=_randomization(cfg.randomization))
     if cfg.anatomy is not None:
         _anatomy(cfg)
-    cfg = replace(cfg, force_obs=bool(cfg.force_obs), scope_obs=bool(cfg.scope_obs),
+    cfg = replace(cfg, force_obs=bool(cfg.force_obs), scope_obs=bool(cfg.scope_obs), time_obs=bool(cfg.time_obs),
                   randomize_phase=bool(cfg.randomize_phase),
                   max_steps=int(cfg.max_steps))
     substeps(cfg)

@@ -37,15 +37,19 @@ def outcome(cfg: TaskConfig, tip, target, origin, axis, force, steps, ok) -> dic
         "reward_force": -cfg.force_penalty * force_n * live,
     }
     terminated = success | exited
+    if cfg.time_obs:  # the policy sees the time left: the trial's end is a terminal state of its MDP
+        terminated = terminated | ((steps >= cfg.max_steps) & ok)
     return {"delta": delta, "distance_mm": dist, "is_success": success, "exited": exited, "force_n": force_n,
             **terms, "reward": sum(terms.values()), "terminated": terminated,
             "truncated": ((steps >= cfg.max_steps) | ~ok) & ~terminated}
 
 
-def observe(xp, cfg: TaskConfig, delta, tip_vel, cable, prev_axial, contact, force, low, high, scope=None):
+def observe(xp, cfg: TaskConfig, delta, tip_vel, cable, prev_axial, contact, force, low, high, scope=None,
+            time_left=None):
     """Observation rows (see task.obs_blocks), clipped to their physical bounds; ``xp`` is numpy or torch.
 
-    ``scope`` (with ``cfg.scope_obs``): insertion (m), tip position from the paper frame's origin (m), tip axis.
+    ``scope`` (with ``cfg.scope_obs``): insertion (m), tip position from the paper frame's origin (m), tip axis;
+    ``time_left`` (with ``cfg.time_obs``): the share of max_steps still left.
     """
     blocks = [delta * MM_PER_M, tip_vel * MM_PER_M, cable * MM_PER_M, prev_axial[:, None] * 1.0]
     if cfg.force_obs:
@@ -53,5 +57,7 @@ def observe(xp, cfg: TaskConfig, delta, tip_vel, cable, prev_axial, contact, for
     if cfg.scope_obs:
         insertion, tip, axis = scope
         blocks += [insertion[:, None] * MM_PER_M, tip * MM_PER_M, axis * 1.0]
+    if cfg.time_obs:
+        blocks += [time_left[:, None] * 1.0]
     obs = xp.asarray(xp.concatenate(blocks, 1), dtype=xp.float32)
     return xp.minimum(xp.maximum(obs, low), high)

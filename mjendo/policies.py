@@ -8,6 +8,7 @@ evaluation, the viewer and training's periodic evaluation treat them alike
 
 from __future__ import annotations
 
+import itertools
 from pathlib import Path
 
 import numpy as np
@@ -15,7 +16,7 @@ import numpy as np
 from mjendo import artifacts
 from mjendo.artifacts import PolicyError
 from mjendo.config import ACTION_SIZE, CURRENT_VERSION, PAPER_ACTION_LIMIT, ConfigError
-from mjendo.task import ACTION_SCALE_FIELDS, NavigationTask, obs_size
+from mjendo.task import ACTION_SCALE_FIELDS, OBS_OPTIONS, NavigationTask, obs_options, obs_size
 
 __all__ = ["PPOController", "PolicyError", "RandomController", "force_obs_of", "load_controller", "obs_options_of"]
 
@@ -43,10 +44,10 @@ class PPOController:
 
     def check(self, task: NavigationTask) -> None:
         """Refuse a task whose observation or action meaning differs from the one the policy trained in."""
-        given = obs_size(task.cfg.force_obs, task.cfg.scope_obs)
+        given = obs_size(**obs_options(task.cfg))
         if self.n_obs != given:
-            fits = [f"force_obs={f}, scope_obs={s}" for f in (False, True) for s in (False, True)
-                    if obs_size(f, s) == self.n_obs]
+            fits = [", ".join(f"{k}={v}" for k, v in zip(OBS_OPTIONS, on, strict=True))
+                    for on in itertools.product((False, True), repeat=len(OBS_OPTIONS)) if obs_size(*on) == self.n_obs]
             raise PolicyError(f"policy {self.name} expects {self.n_obs} observations but the task gives {given}: "
                               f"use {' or '.join(fits) or 'the task the policy was trained in'}")
         trained = artifacts.trained_task(self.meta)
@@ -93,9 +94,9 @@ NON_LEARNED = ("baseline", "random")
 
 
 def obs_options_of(spec: str) -> dict[str, bool]:
-    """The observation options (force_obs, scope_obs) the controller named by ``spec`` needs (its own folder)."""
-    if spec in NON_LEARNED:
-        return {"force_obs": True, "scope_obs": False}  # they ignore the observation's force part
+    """The observation options (task.OBS_OPTIONS) the controller named by ``spec`` needs (its own folder)."""
+    if spec in NON_LEARNED:  # they ignore the observation's force part
+        return {k: k == "force_obs" for k in OBS_OPTIONS}
     return artifacts.obs_options(artifacts.resolve(spec))
 
 

@@ -15,7 +15,7 @@ from dm_control.suite import base
 from dm_env import specs
 
 from mjendo.config import ACTION_SIZE, PAPER_ACTION_LIMIT, task_config
-from mjendo.task import NavigationTask, obs_blocks
+from mjendo.task import NavigationTask, obs_blocks, obs_options
 
 
 class Physics(dm_mujoco.Physics):
@@ -62,7 +62,7 @@ class Navigation(base.Task):
     def get_observation(self, physics):
         obs = self.core.observation().astype(np.float64)
         out, i = collections.OrderedDict(), 0
-        for name, n, _unit, _bounds in obs_blocks(self.core.cfg.force_obs):
+        for name, n, _unit, _bounds in obs_blocks(**obs_options(self.core.cfg)):
             out[name] = obs[i:i + n].copy()
             i += n
         return out

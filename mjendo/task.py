@@ -40,6 +40,9 @@ FORCE_BLOCKS = [("contact", 1, "0/1", (0.0, 1.0)), ("force", 3, "N / force_ref_n
 # scope_obs: the tip position is taken from the paper frame's origin (15 mm outside the cardia), world axes.
 SCOPE_BLOCKS = [("insertion", 1, "mm", (-100.0, 300.0)), ("tip_position", 3, "mm", (-1000.0, 1000.0)),
                 ("tip_axis", 3, "unit vector", (-1.0, 1.0))]
+TIME_BLOCKS = [("time_left", 1, "share of max_steps", (0.0, 1.0))]
+# The task options that add observation blocks, in the order their blocks follow the paper's.
+OBS_OPTIONS = ("force_obs", "scope_obs", "time_obs")
 SETTLE_S = 1.0  # the stomach settles under gravity (and load) before episodes start
 # Start states are snapshots of the stomach in its periodic steady state, this
 # many per load cycle (every 50 ms of a 4 s cycle): an episode starts at its
@@ -54,18 +57,24 @@ TARGET_YELLOW = (1.0, 0.85, 0.0, 1.0)
 ACTION_SCALE_FIELDS = ("control_period_s", "cable_mm_per_unit", "insertion_mm_per_unit")
 
 
-def obs_blocks(force_obs: bool, scope_obs: bool = False) -> list[tuple]:
-    return OBS_BLOCKS + (FORCE_BLOCKS if force_obs else []) + (SCOPE_BLOCKS if scope_obs else [])
+def obs_blocks(force_obs: bool, scope_obs: bool = False, time_obs: bool = False) -> list[tuple]:
+    return OBS_BLOCKS + (FORCE_BLOCKS if force_obs else []) + (SCOPE_BLOCKS if scope_obs else []) \
+        + (TIME_BLOCKS if time_obs else [])
 
 
-def obs_size(force_obs: bool, scope_obs: bool = False) -> int:
-    return sum(b[1] for b in obs_blocks(force_obs, scope_obs))
+def obs_size(force_obs: bool, scope_obs: bool = False, time_obs: bool = False) -> int:
+    return sum(b[1] for b in obs_blocks(force_obs, scope_obs, time_obs))
+
+
+def obs_options(cfg: TaskConfig) -> dict[str, bool]:
+    """The task's observation options (OBS_OPTIONS) by name."""
+    return {k: bool(getattr(cfg, k)) for k in OBS_OPTIONS}
 
 
 def obs_bounds(cfg: TaskConfig) -> tuple[np.ndarray, np.ndarray]:
     """Lower and upper bound of every observation entry (the force block in units of force_ref_n)."""
     lo, hi = [], []
-    for name, n, _unit, (a, b) in obs_blocks(cfg.force_obs, cfg.scope_obs):
+    for name, n, _unit, (a, b) in obs_blocks(**obs_options(cfg)):
         scale = 1.0 / cfg.force_ref_n if name == "force" else 1.0
         lo += [a * scale] * n
         hi += [b * scale] * n
@@ -117,7 +126,7 @@ class NavigationTask:
         self.cable_step = from_mm(c.cable_mm_per_unit)
         self.insertion_step = from_mm(c.insertion_mm_per_unit)
         self.substeps = substeps(c)
-        self.obs_size = obs_size(c.force_obs, c.scope_obs)
+        self.obs_size = obs_size(**obs_options(c))
         self.obs_low, self.obs_high = obs_bounds(c)
         self.control_dt = self.substeps * self.sim.model.opt.timestep
         # Paper's frame: x along the insertion axis, origin 15 mm outside the
@@ -322,4 +331,5 @@ class NavigationTask:
             force = force + self._noise.normal(0.0, r.force_noise_n, 3)
         return mdp.observe(np, self.cfg, delta[None], sim.tip_vel()[None], sim.cable_lengths()[None],
                            np.array([self.prev_axial]), np.array([float(self.contact.active)]),
-                           force[None], self.obs_low, self.obs_high, scope)[0]
+                           force[None], self.obs_low, self.obs_high, scope,
+                           np.array([1.0 - self.steps / self.cfg.max_steps]))[0]

@@ -29,6 +29,7 @@ from mjendo import anatomy, artifacts, cli, paths, targets
 from mjendo.artifacts import MODEL_FILE, NORM_FILE, PolicyError, model_home
 from mjendo.config import FIDELITIES, PAPER_EVAL_STEPS, ConfigError, default_target_list
 from mjendo.sampling import TargetSampler
+from mjendo.task import OBS_OPTIONS, obs_options
 from mjendo.train_config import TrainConfig, from_dict
 from mjendo.train_config import load as load_config
 
@@ -275,11 +276,16 @@ def _start_from(cfg: TrainConfig, venv):
     if not (src / MODEL_FILE).exists():
         raise ConfigError(f"init_from {src} holds no {MODEL_FILE}; give a policy folder such as "
                           "models/policies/E or a finished run folder")
-    have, want = artifacts.obs_options(src), {"force_obs": cfg.force_obs, "scope_obs": cfg.task_config().scope_obs}
+    have, want = artifacts.obs_options(src), obs_options(cfg.task_config())
     if have != want:
-        if have["force_obs"] != want["force_obs"] or have["scope_obs"]:
+        # New blocks must come after all of the source's (widening appends inputs): none dropped, none in between.
+        added = [k for k in OBS_OPTIONS if want[k] and not have[k]]
+        last = max((OBS_OPTIONS.index(k) for k in OBS_OPTIONS if have[k]), default=-1)
+        if have["force_obs"] != want["force_obs"] or any(have[k] and not want[k] for k in OBS_OPTIONS) \
+                or OBS_OPTIONS.index(added[0]) < last:
             raise ConfigError(f"init_from {src} observes {have}, this run {want}: a fine-tune keeps the force "
-                              "observation, and can only add the scope's state (scope_obs), not drop it")
+                              "observation and can only add the scope's state (scope_obs) or the time left "
+                              "(time_obs) after the source's inputs, not drop or reorder them")
         return _widened_start(cfg, venv, src)
     if cfg.normalize:
         venv = VecNormalize.load(str(src / NORM_FILE), venv)  # keeps adapting to the new stomach
@@ -297,7 +303,7 @@ def _start_from(cfg: TrainConfig, venv):
 
 
 def _widened_start(cfg: TrainConfig, venv, src: Path):
-    """A PPO that also observes the scope's state, acting at first exactly as the policy in ``src``."""
+    """A PPO that also observes the scope's state or the time left, acting at first exactly as the policy in ``src``."""
     from stable_baselines3 import PPO
 
     from mjendo.widen import widen_state, widened_normalizer
@@ -308,7 +314,7 @@ def _widened_start(cfg: TrainConfig, venv, src: Path):
     model.policy.load_state_dict(widen_state(source.policy.state_dict(), model.policy.state_dict(), n))
     if cfg.normalize:
         model.set_env(widened_normalizer(src / NORM_FILE, venv, cfg.ppo.gamma, model))
-    print(f"widened {src}: {n} inputs -> {model.observation_space.shape[0]} (the scope's state, zero weights)")
+    print(f"widened {src}: {n} inputs -> {model.observation_space.shape[0]} (the new ones at zero weight)")
     return model
 
 

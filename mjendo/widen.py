@@ -1,6 +1,7 @@
-"""Start a policy that observes the scope's state (``scope_obs``) from a trained one that does not.
+"""Start a policy that observes more (the scope's state ``scope_obs``, the time left ``time_obs``) from a trained
+one that does not.
 
-The added inputs come last in the observation (task.SCOPE_BLOCKS), so the source's first-layer weights
+The added inputs come last in the observation (task.OBS_OPTIONS' order), so the source's first-layer weights
 are kept and the new inputs' weights start at zero: the widened policy and value function compute exactly
 what the source computed (function-preserving widening, as Net2Net) until training gives the new inputs
 weight. A policy that must learn from scratch to use the scope's state would first have to relearn the wall.
@@ -16,7 +17,7 @@ import numpy as np
 from mjendo.config import ConfigError
 
 # Rollout steps of the source policy from which the new inputs' normalisation starts: enough for a few
-# whole episodes on each environment, so insertion depth and tip pose are seen over their range.
+# whole episodes on each environment, so insertion depth, tip pose and time are seen over their range.
 STAT_STEPS = 2048
 
 

@@ -400,9 +400,10 @@ def test_without_mujoco_warp_the_batched_backend_says_how_to_install_it(monkeypa
         batch.BatchedNavigation(1, env="FE", device="cpu")
 
 
-def test_the_scope_observation_is_refused_by_the_batched_backend():
-    with pytest.raises(ConfigError, match="scope_obs is not available in the batched backend.*--backend cpu"):
-        BatchedNavigation(1, env="FE", device="cpu", scope_obs=True)
+@pytest.mark.parametrize("option", ["scope_obs", "time_obs"])
+def test_the_scope_and_time_observations_are_refused_by_the_batched_backend(option):
+    with pytest.raises(ConfigError, match="scope_obs and time_obs are not available in the batched backend.*cpu"):
+        BatchedNavigation(1, env="FE", device="cpu", **{option: True})
 
 
 def test_randomization_is_refused_by_the_batched_backend():

@@ -182,6 +182,22 @@ def test_scope_observation_is_the_insertion_and_tip_pose_appended():
     assert np.linalg.norm(os_[19:22]) == pytest.approx(1.0, abs=1e-5)
 
 
+def test_time_observation_counts_down_and_the_limit_then_terminates():
+    plain, timed = EndoscopeEnv("DE", max_steps=6), EndoscopeEnv("DE", max_steps=6, time_obs=True)
+    assert timed.observation_space.shape == (16,)
+    op, _ = plain.reset(seed=3)
+    ot, _ = timed.reset(seed=3)
+    assert ot[-1] == 1.0
+    for k in range(1, 7):
+        op, _, term_p, trunc_p, _ = plain.step(np.array([0.2, 0, 0, 0, 0.4]))
+        ot, _, term_t, trunc_t, info = timed.step(np.array([0.2, 0, 0, 0, 0.4]))
+        np.testing.assert_array_equal(op, ot[:15])  # the same physics and the paper's observation
+        assert ot[-1] == pytest.approx(1.0 - k / 6)
+    # At the limit the blind task truncates (the episode could go on); the timed one terminates: its
+    # observation says no time is left, so nothing follows that state.
+    assert trunc_p and not term_p and term_t and not trunc_t and not info["is_success"]
+
+
 def test_target_weights_set_how_often_each_target_is_drawn():
     env = EndoscopeEnv("DE")
     hard = set(env.task.targets[env.task.contact_aided].tolist())
@@ -384,6 +400,7 @@ BAD_TASK_ARGS = [
     ({"insertion_mm_per_unit": float("inf")}, "insertion_mm_per_unit must be a finite number"),
     ({"force_obs": "false"}, "force_obs must be True or False"),
     ({"scope_obs": 1}, "scope_obs must be True or False"),
+    ({"time_obs": "yes"}, "time_obs must be True or False"),
     ({"randomize_phase": 1}, "randomize_phase must be True or False"),
     ({"max_steps": 1.7}, "max_steps must be a whole number"),
     ({"max_steps": 0}, "max_steps must be a whole number >= 1"),

@@ -44,6 +44,15 @@ def test_numpy_and_torch_agree_on_every_output():
                      tuple(torch.as_tensor(x) for x in scope))
     np.testing.assert_array_equal(s1, s2.numpy())
     np.testing.assert_array_equal(s1[:, :15], o1)  # the scope's state is appended, the rest unchanged
+    timed = task_config(env="DE", scope_obs=True, time_obs=True)
+    lo, hi = obs_bounds(timed)
+    left = np.linspace(0.0, 1.0, 64)
+    t1 = mdp.observe(np, timed, *parts, lo, hi, scope, left)
+    t2 = mdp.observe(torch, timed, *(torch.as_tensor(x) for x in parts), torch.as_tensor(lo), torch.as_tensor(hi),
+                     tuple(torch.as_tensor(x) for x in scope), torch.as_tensor(left))
+    np.testing.assert_array_equal(t1, t2.numpy())
+    np.testing.assert_array_equal(t1[:, :22], s1)
+    np.testing.assert_allclose(t1[:, 22], left)  # the time left comes last of all
 
 
 def test_the_paper_rewards_and_an_unstable_step():

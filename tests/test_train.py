@@ -344,9 +344,14 @@ def test_same_seed_same_machine_trains_bit_identical_weights(short_run, tmp_path
     assert ea == eb
 
 
-def test_a_fine_tune_that_adds_the_scope_state_starts_acting_and_valuing_as_its_source(monkeypatch):
-    # randomized-scope widens a 15-input policy to 22 inputs: until training weighs the new inputs it must be
-    # the source, step for step in the real simulator (random new weights would make it a different policy).
+@pytest.mark.parametrize("variant,size,mean_range,spread", [
+    ("randomized-scope", 22, (0.0, 160.0), 10.0),   # insertion depth first, in mm
+    ("short-horizon-timed", 16, (0.0, 1.0), 0.1),   # the share of the trial left
+])
+def test_a_fine_tune_that_adds_inputs_starts_acting_and_valuing_as_its_source(monkeypatch, variant, size, mean_range,
+                                                                               spread):
+    # Widening a 15-input policy: until training weighs the new inputs it must be the source, step for step in
+    # the real simulator (random new weights would make it a different policy).
     import pickle
 
     import torch
@@ -357,17 +362,17 @@ def test_a_fine_tune_that_adds_the_scope_state_starts_acting_and_valuing_as_its_
     from mjendo import widen
 
     monkeypatch.setattr(widen, "STAT_STEPS", 256)
-    cfg = load_config("E", TRAINING_CONFIG, "randomized-scope", n_envs=2)
+    cfg = load_config("E", TRAINING_CONFIG, variant, n_envs=2)
     model = train_module._start_from(cfg, DummyVecEnv([train_module.make_env(cfg, i) for i in range(2)]))
     src_dir = mjendo.paths.DATA / cfg.init_from
     source = PPO.load(str(src_dir / "model.zip"), device="cpu")
     with open(src_dir / "vecnormalize.pkl", "rb") as f:
         src_norm = pickle.load(f)
     norm = model.get_env()
-    assert model.observation_space.shape == (22,) and source.observation_space.shape == (15,)
-    insertion_mean, insertion_std = norm.obs_rms.mean[15], np.sqrt(norm.obs_rms.var[15])
-    assert 0.0 < insertion_mean < 160.0 and insertion_std > 1.0  # measured, in mm, not left at 0 / 1
-    obs, moved = norm.reset(), 0.0
+    assert model.observation_space.shape == (size,) and source.observation_space.shape == (15,)
+    first_mean, first_std = norm.obs_rms.mean[15], np.sqrt(norm.obs_rms.var[15])
+    assert mean_range[0] < first_mean < mean_range[1] and first_std > spread / 10  # measured, not left at 0 / 1
+    obs, seen = norm.reset(), []
     for _ in range(20):
         raw = norm.get_original_obs()
         own = np.clip((raw[:, :15] - src_norm.obs_rms.mean) / np.sqrt(src_norm.obs_rms.var + src_norm.epsilon),
@@ -379,8 +384,21 @@ def test_a_fine_tune_that_adds_the_scope_state_starts_acting_and_valuing_as_its_
             v_src = source.policy.predict_values(torch.as_tensor(own))
         np.testing.assert_allclose(v_new.numpy(), v_src.numpy(), rtol=1e-4, atol=1e-3)
         obs, *_ = norm.step(act)
-        moved = max(moved, float(np.abs(raw[:, 15]).max()))
-    assert moved > 10.0  # the scope went in: the new inputs changed while the actions stayed the source's
+        seen.append(raw[:, 15])
+    assert np.ptp(seen) > spread  # the new inputs changed while the actions stayed the source's
     d = load_config("D", TRAINING_CONFIG, init_from="models/policies/E")
     with pytest.raises(ConfigError, match="keeps the force observation"):
         train_module._start_from(d, DummyVecEnv([train_module.make_env(d, 0)]))
+
+
+def test_a_fine_tune_adds_inputs_only_after_the_sources(monkeypatch):
+    from mjendo import train as train_module
+
+    cfg = load_config("E", TRAINING_CONFIG, "randomized-scope")
+    cfg.task = {**cfg.task, "time_obs": True}  # wants the scope's state and the time left
+    monkeypatch.setattr(artifacts, "obs_options", lambda _d: {"force_obs": True, "scope_obs": False, "time_obs": True})
+    with pytest.raises(ConfigError, match="after the source's inputs, not drop or reorder them"):
+        train_module._start_from(cfg, None)  # the scope's block would land before the source's time
+    cfg.task = {**cfg.task, "time_obs": False}
+    with pytest.raises(ConfigError, match="not drop or reorder"):
+        train_module._start_from(cfg, None)  # the source's time left would be dropped

@@ -183,6 +183,9 @@ class TrainConfig:
         if self.guide_steps < 0 or self.guide_decay_steps < 0 or (self.guide_steps and self.backend == "warp"):
             raise ConfigError(f"guide_steps and guide_decay_steps must be >= 0, and guided starts need the cpu "
                               f"backend (got {self.guide_steps}, {self.guide_decay_steps}, backend {self.backend})")
+        if self.guide_steps and self.task_config().version < 1:
+            raise ConfigError("guided starts replay the reachability map's demonstrators, which task version 0 "
+                              "(vertex targets) has none of: use version 1 or guide_steps 0")
         for name in ("checkpoint_every", "eval_every", "eval_episodes"):
             if getattr(self, name) < 1:
                 raise ConfigError(f"{name} must be >= 1")

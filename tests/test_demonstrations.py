@@ -69,6 +69,9 @@ def test_the_guide_limit_falls_to_zero_and_only_training_episodes_are_guided():
     assert not isinstance(make_env(load_config("E", TRAINING_CONFIG), 0)().env, GuidedStarts)
     with pytest.raises(ConfigError, match="guide_steps and guide_decay_steps must be >= 0"):
         load_config("E", TRAINING_CONFIG, "short-horizon-guided", guide_steps=-1)
+    cfg.task = {**cfg.task, "version": 0}
+    with pytest.raises(ConfigError, match="task version 0 .* has none of"):
+        cfg.check()
 
 
 def test_each_start_state_takes_the_demonstrator_of_the_nearest_recorded_phase():

@@ -329,7 +329,7 @@ class NavigationTask:
         if r is not None:  # sensor noise: the tracker's on the target vector, the tip sensor's on the force
             delta = delta + self._noise.normal(0.0, from_mm(r.target_noise_mm), 3)
             force = force + self._noise.normal(0.0, r.force_noise_n, 3)
+        left = np.array([1.0 - self.steps / self.cfg.max_steps]) if self.cfg.time_obs else None
         return mdp.observe(np, self.cfg, delta[None], sim.tip_vel()[None], sim.cable_lengths()[None],
                            np.array([self.prev_axial]), np.array([float(self.contact.active)]),
-                           force[None], self.obs_low, self.obs_high, scope,
-                           np.array([1.0 - self.steps / self.cfg.max_steps]))[0]
+                           force[None], self.obs_low, self.obs_high, scope, left)[0]

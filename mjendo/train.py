@@ -361,6 +361,9 @@ def train(policy: str, timesteps: int | None = None, seed: int | None = None, n_
     from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecNormalize
 
     torch.set_num_threads(1)
+    # torch checks every distribution's arguments when SB3 builds one (each rollout step, each minibatch):
+    # 2-3 % of a training step here, and the policy's outputs are finite by construction.
+    torch.distributions.Distribution.set_default_validate_args(False)
     meta = {"policy": policy, "seed": cfg.seed, "init_from": cfg.init_from, **artifacts.task_meta(cfg.task_config())}
     if cfg.backend == "warp":
         from mjendo.batch import vec_env

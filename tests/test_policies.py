@@ -10,7 +10,7 @@ import pytest
 from scipy.stats import binom
 
 from mjendo import artifacts
-from mjendo.config import PAPER_EVAL_STEPS
+from mjendo.config import PAPER_ACTION_LIMIT, PAPER_EVAL_STEPS
 from mjendo.envs import EndoscopeEnv
 from mjendo.paths import policies_dir
 from mjendo.policies import PolicyError, PPOController, force_obs_of, load_controller
@@ -78,6 +78,21 @@ def test_normalize_is_sb3s_vecnormalize():
         obs, *_ = env.step(np.full(5, 0.3))
     big = np.full(15, 1e6, np.float32)  # clipped at clip_obs
     np.testing.assert_allclose(ctrl.normalize(big), vn.normalize_obs(big), rtol=1e-6)
+
+
+def test_act_is_sb3s_deterministic_predict():
+    """The lean actor pass the evaluation uses returns predict's action: the mean, clipped to the box."""
+    ctrl = PPOController.from_folder(policies_dir() / "E")
+    rng = np.random.default_rng(3)
+    clipped = 0
+    for scale in (1.0, 30.0, 300.0):  # large observations drive the mean past the box: the clip must match too
+        for _ in range(20):
+            obs = (rng.normal(size=ctrl.n_obs) * scale).astype(np.float32)
+            want, _ = ctrl.model.predict(ctrl.normalize(obs), deterministic=True)
+            got = ctrl.act(obs, None)
+            np.testing.assert_allclose(got, want, rtol=0, atol=1e-6)
+            clipped += int(np.any(np.abs(want) >= PAPER_ACTION_LIMIT))
+    assert clipped > 0
 
 
 def test_what_a_policy_observes_comes_from_its_own_folder(tmp_path, monkeypatch):

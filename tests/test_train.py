@@ -118,8 +118,8 @@ def test_fine_tune_config_block_applies_only_with_init_from(tmp_path):
 
 def test_batched_block_applies_only_with_the_warp_backend():
     cpu, gpu = load_config("E", TRAINING_CONFIG), load_config("E", TRAINING_CONFIG, backend="warp")
-    assert (cpu.backend, cpu.n_envs, cpu.eval_every) == ("cpu", 2, 20000)
-    # 4096 worlds fill a 131k-sample rollout: evaluating (in the CPU env) every 20k steps would follow each one
+    assert (cpu.backend, cpu.n_envs, cpu.eval_every) == ("cpu", 2, 50000)
+    # 4096 worlds fill a 131k-sample rollout: evaluating (in the CPU env) every 50k steps would follow each one
     assert gpu.backend == "warp" and gpu.n_envs == 4096 and gpu.ppo.batch_size == 32768
     assert gpu.eval_every >= 10 * gpu.n_envs * gpu.ppo.n_steps and gpu.checkpoint_every > cpu.checkpoint_every
 

@@ -696,8 +696,8 @@ def write_outputs(cfg: StudyConfig, rows: list[dict], command: str, wall_s: floa
               "*Success rate of every training seed (dots) and the mean over seeds with its 95 % stratified-"
               "bootstrap interval (black), per environment.*", "",
               f"![Periodic evaluation of every seed during training]({curves.name})", "",
-              "*Periodic evaluation during training (40 trials in the training condition every 20k steps, "
-              "mean of three), every seed (evaluations.csv of each run).*", ""]
+              "*Periodic evaluation during training (40 trials in the training condition at each run's "
+              "eval_every, mean of three), every seed (evaluations.csv of each run).*", ""]
     (out / "report.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
     print(f"wrote {out}")

@@ -512,7 +512,6 @@ def success_rate(policy_dir, cfg: TaskConfig, n_worlds: int, episodes: int, devi
     The policy folder is read as the CPU tools read it (:mod:`mjendo.artifacts`): same normalisation, same
     checks; its actions are computed for all worlds at once.
     """
-    import torch
 
     from mjendo.policies import PPOController
 
@@ -522,10 +521,7 @@ def success_rate(policy_dir, cfg: TaskConfig, n_worlds: int, episodes: int, devi
     obs = batch.reset()
     successes, errors = [], []
     while len(successes) < episodes:
-        normed = ctrl.normalize(obs.cpu().numpy())
-        with torch.no_grad():
-            action, _ = ctrl.model.predict(normed, deterministic=True)
-        r = batch.step(action)
+        r = batch.step(ctrl.act(obs.cpu().numpy(), batch.core))
         done = (r.terminated | r.truncated).cpu().numpy()
         successes += r.info["is_success"].cpu().numpy()[done].tolist()
         errors += r.info["distance_mm"].cpu().numpy()[done].tolist()

@@ -72,17 +72,20 @@ class PPOController:
         o = (obs - p.obs_rms.mean) / np.sqrt(p.obs_rms.var + p.epsilon)
         return np.clip(o, -p.clip_obs, p.clip_obs).astype(np.float32)
 
-    def act(self, obs, task: NavigationTask) -> np.ndarray:
-        """The actor's mean clipped to the action box: what ``model.predict(deterministic=True)`` returns, a
-        third of its cost (it builds a distribution every call), which the evaluation and the study pay per step."""
+    def act(self, obs, task: NavigationTask | None) -> np.ndarray:
+        """The actor's mean clipped to the action box, for one observation or a batch (n, n_obs): what
+        ``model.predict(deterministic=True)`` returns, a third of its cost (it builds a distribution every call),
+        which the evaluation and the study pay per step."""
         import torch
 
         pol = self.model.policy
+        obs = np.asarray(obs, np.float32)
         with torch.no_grad():
-            x = torch.as_tensor(self.normalize(np.asarray(obs, np.float32))).reshape(1, -1)
+            x = torch.as_tensor(self.normalize(obs)).reshape(-1, self.n_obs)
             mean = pol.action_net(pol.mlp_extractor.forward_actor(pol.extract_features(x, pol.pi_features_extractor)))
         space = self.model.action_space
-        return np.clip(mean.numpy()[0], space.low, space.high)
+        action = np.clip(mean.numpy(), space.low, space.high)
+        return action if obs.ndim == 2 else action[0]
 
 
 class RandomController:

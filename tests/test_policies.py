@@ -93,6 +93,9 @@ def test_act_is_sb3s_deterministic_predict():
             np.testing.assert_allclose(got, want, rtol=0, atol=1e-6)
             clipped += int(np.any(np.abs(want) >= PAPER_ACTION_LIMIT))
     assert clipped > 0
+    batch = (rng.normal(size=(16, ctrl.n_obs)) * 30.0).astype(np.float32)  # the batched backend's call
+    np.testing.assert_allclose(ctrl.act(batch, None), ctrl.model.predict(ctrl.normalize(batch), deterministic=True)[0],
+                               rtol=0, atol=1e-6)
 
 
 def test_what_a_policy_observes_comes_from_its_own_folder(tmp_path, monkeypatch):

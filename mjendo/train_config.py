@@ -151,6 +151,11 @@ class TrainConfig:
     guide_decay_steps: int = 0
     """steps after which training is unguided (0: the whole budget)"""
 
+    @property
+    def rollout_size(self) -> int:
+        """Samples PPO collects per update: every environment's n_steps."""
+        return self.n_envs * self.ppo.n_steps
+
     def task_config(self) -> TaskConfig:
         """The task this run trains in (validated)."""
         return task_config(env=self.env, fidelity=self.fidelity, force_obs=self.force_obs, **self.task)

@@ -26,7 +26,7 @@ def short_run(tmp_path_factory):
     import yaml
 
     raw = yaml.safe_load(TRAINING_CONFIG.read_text())
-    raw["defaults"].update(checkpoint_every=128, eval_every=256, eval_episodes=1, vec_env="dummy")
+    raw["defaults"].update(checkpoint_every=128, eval_every=256, eval_episodes=1, vec_env="dummy", n_envs=2)
     raw["defaults"]["ppo"].update(n_steps=64, batch_size=64, n_epochs=1)
     cfg_path = out / "policies.yaml"
     cfg_path.write_text(yaml.safe_dump(raw))
@@ -118,7 +118,7 @@ def test_fine_tune_config_block_applies_only_with_init_from(tmp_path):
 
 def test_batched_block_applies_only_with_the_warp_backend():
     cpu, gpu = load_config("E", TRAINING_CONFIG), load_config("E", TRAINING_CONFIG, backend="warp")
-    assert (cpu.backend, cpu.n_envs, cpu.eval_every) == ("cpu", 2, 50000)
+    assert (cpu.backend, cpu.n_envs, cpu.rollout_size, cpu.eval_every) == ("cpu", 8, 2048, 50000)
     # 4096 worlds fill a 131k-sample rollout: evaluating (in the CPU env) every 50k steps would follow each one
     assert gpu.backend == "warp" and gpu.n_envs == 4096 and gpu.ppo.batch_size == 32768
     assert gpu.eval_every >= 10 * gpu.n_envs * gpu.ppo.n_steps and gpu.checkpoint_every > cpu.checkpoint_every
@@ -228,7 +228,7 @@ def test_bench_training_figure_builds_the_shipped_ppo():
     # The bench must time the same PPO that training builds (it once broke on a new config key).
     from mjendo.bench import training_figure
 
-    r = training_figure("dummy", 2048)
+    r = training_figure("dummy", 2048, n_envs=2)
     assert r["n_envs"] == 2 and r["steps_per_s"] > 20
 
 
@@ -307,7 +307,7 @@ def test_per_policy_ppo_and_task_blocks_merge_into_the_defaults(tmp_path):
         raw["policies"]["E"]["task"] = {"force_penalty": 0.5, "max_steps": 96}
 
     cfg = load_config("E", _yaml_with(tmp_path, edit))
-    assert cfg.ppo.n_epochs == 4 and cfg.ppo.n_steps == 1024 and cfg.ppo.net_arch == [256, 128, 64, 32]
+    assert cfg.ppo.n_epochs == 4 and cfg.ppo.n_steps == 256 and cfg.ppo.net_arch == [256, 128, 64, 32]
     task = cfg.task_config()
     assert task.force_penalty == 0.5 and task.max_steps == 96 and task.env == "DE" and task.force_obs
     assert load_config("D", _yaml_with(tmp_path, edit)).ppo.n_epochs == 10  # other policies keep the defaults

@@ -136,7 +136,14 @@ def _callbacks(cfg: TrainConfig, run: Path, meta: dict, start_steps: int, progre
             self.best = _best_so_far(run)
             self.sampler = target_sampler(cfg, run)
 
+        def checkpoint_if_due(self) -> None:
+            # Called between PPO updates only, so a resumed run keeps the uninterrupted run's step grid.
+            if self.num_timesteps >= self.next_ckpt:
+                self.next_ckpt = (self.num_timesteps // cfg.checkpoint_every + 1) * cfg.checkpoint_every
+                save_checkpoint(self.model, run, self.sampler)
+
         def _on_rollout_start(self) -> None:
+            self.checkpoint_if_due()
             if self.sampler.active:  # how often each target is drawn (TrainConfig.target_sampling, curriculum)
                 self.training_env.env_method("set_target_weights", self.sampler.weights(self.num_timesteps))
             if cfg.guide_steps:  # guided starts (mjendo.demonstrations): the most demonstrator steps, falling to 0
@@ -154,9 +161,6 @@ def _callbacks(cfg: TrainConfig, run: Path, meta: dict, start_steps: int, progre
             if self.num_timesteps >= self.next_eval:
                 self.next_eval += cfg.eval_every
                 self.evaluate()
-            if self.num_timesteps >= self.next_ckpt:
-                self.next_ckpt += cfg.checkpoint_every
-                save_checkpoint(self.model, run, self.sampler)
             if self.n_calls % 50 == 0:
                 rate = (self.num_timesteps - self.s0) / max(time.time() - self.t0, 1e-9)
                 shown = {"steps_s": f"{rate:.0f}", "success": f"{np.mean(self.recent or [0]):.2f}"}
@@ -178,6 +182,7 @@ def _callbacks(cfg: TrainConfig, run: Path, meta: dict, start_steps: int, progre
             self.logger.record("time/steps_per_s", (self.num_timesteps - self.s0) / (time.time() - self.t0))
 
         def _on_training_end(self) -> None:
+            self.checkpoint_if_due()
             self.bar.close()
 
     return Training()

@@ -512,6 +512,10 @@ class TaskConfig:
     # limit a policy that does not see the time cannot know how much is left). With it the limit is part of the
     # MDP: reaching max_steps terminates the episode instead of truncating it.
     time_obs: bool = False
+    # The breathing cycle's phase (sine and cosine): clinical systems measure it (a respiratory belt or the
+    # ventilator; respiratory gating, Keall et al. 2006, AAPM TG-76, Med. Phys. 33: 3874). A policy that sees
+    # the wall only through the target vector and the force cannot tell how long the wall will stay where it is.
+    phase_obs: bool = False
     target_list: str | None = None  # None: the environment's own list (A or B); "A+F": lists joined
     max_steps: int = PAPER_TRAIN_STEPS
     version: int = CURRENT_VERSION  # task version (VERSIONS): scope, gravity, time scales, targets
@@ -563,7 +567,7 @@ def task_config(**kw) -> TaskConfig:
     ver = task_version(int(cfg.version))
     cfg = replace(cfg, version=int(cfg.version), **{k: getattr(ver, k) for k in ACTION_SCALES
                                                     if getattr(cfg, k) is None})
-    for name in ("force_obs", "scope_obs", "time_obs", "randomize_phase"):
+    for name in ("force_obs", "scope_obs", "time_obs", "phase_obs", "randomize_phase"):
         if not isinstance(getattr(cfg, name), bool | np.bool_):
             raise ConfigError(f"{name} must be True or False, not {getattr(cfg, name)!r}")
     parts = cfg.target_list.split("+") if isinstance(cfg.target_list, str) else [cfg.target_list]
@@ -580,7 +584,7 @@ def task_config(**kw) -> TaskConfig:
     if cfg.anatomy is not None:
         _anatomy(cfg)
     cfg = replace(cfg, force_obs=bool(cfg.force_obs), scope_obs=bool(cfg.scope_obs), time_obs=bool(cfg.time_obs),
-                  randomize_phase=bool(cfg.randomize_phase),
+                  phase_obs=bool(cfg.phase_obs), randomize_phase=bool(cfg.randomize_phase),
                   max_steps=int(cfg.max_steps))
     substeps(cfg)
     return cfg

@@ -8,6 +8,8 @@ Inputs are SI (metres, newtons); rewards and observations are millimetres, conve
 
 from __future__ import annotations
 
+import math
+
 from mjendo.config import PAPER_BONUS, PAPER_EXIT_X_MM, PAPER_SUCCESS_MM, TaskConfig
 from mjendo.units import MM_PER_M
 
@@ -45,11 +47,12 @@ def outcome(cfg: TaskConfig, tip, target, origin, axis, force, steps, ok) -> dic
 
 
 def observe(xp, cfg: TaskConfig, delta, tip_vel, cable, prev_axial, contact, force, low, high, scope=None,
-            time_left=None):
+            time_left=None, phase=None):
     """Observation rows (see task.obs_blocks), clipped to their physical bounds; ``xp`` is numpy or torch.
 
     ``scope`` (with ``cfg.scope_obs``): insertion (m), tip position from the paper frame's origin (m), tip axis;
-    ``time_left`` (with ``cfg.time_obs``): the share of max_steps still left.
+    ``time_left`` (with ``cfg.time_obs``): the share of max_steps still left; ``phase`` (with ``cfg.phase_obs``):
+    the breathing cycle's phase as a share of the cycle, observed as its sine and cosine (no jump at the wrap).
     """
     blocks = [delta * MM_PER_M, tip_vel * MM_PER_M, cable * MM_PER_M, prev_axial[:, None] * 1.0]
     if cfg.force_obs:
@@ -59,5 +62,8 @@ def observe(xp, cfg: TaskConfig, delta, tip_vel, cable, prev_axial, contact, for
         blocks += [insertion[:, None] * MM_PER_M, tip * MM_PER_M, axis * 1.0]
     if cfg.time_obs:
         blocks += [time_left[:, None] * 1.0]
+    if cfg.phase_obs:
+        angle = 2 * math.pi * phase
+        blocks += [xp.sin(angle)[:, None], xp.cos(angle)[:, None]]
     obs = xp.asarray(xp.concatenate(blocks, 1), dtype=xp.float32)
     return xp.minimum(xp.maximum(obs, low), high)

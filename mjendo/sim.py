@@ -32,7 +32,12 @@ def square_wave(t: float, f0: float, half_period: float) -> float:
     """Paper's load: +f0 while (t/T) mod 2 is in [0, 1), -f0 while in [1, 2)."""
     if f0 == 0.0:
         return 0.0
-    return f0 if (t / half_period) % 2.0 < 1.0 else -f0
+    return f0 if cycle_phase(t, half_period) < 0.5 else -f0
+
+
+def cycle_phase(t: float, half_period: float) -> float:
+    """Where ``t`` falls in the square wave's cycle, as a share in [0, 1): the load is +f0 below 0.5."""
+    return (t / half_period) % 2.0 / 2.0
 
 
 def link_length(m: mujoco.MjModel, body: int) -> float:
@@ -235,6 +240,10 @@ class Simulator:
         n = self._nominal_direction
         self._along = float(d @ n)
         self._across = (d - self._along * n) @ self._load_axes()
+
+    def load_phase(self) -> float:
+        """The breathing cycle's phase now (share of the cycle; the clock runs in SE too, where the load is 0)."""
+        return cycle_phase(self.data.time, self.half_period)
 
     def restore_scene_values(self) -> None:
         """Tissue, friction and load as the scene file has them."""

@@ -41,8 +41,9 @@ FORCE_BLOCKS = [("contact", 1, "0/1", (0.0, 1.0)), ("force", 3, "N / force_ref_n
 SCOPE_BLOCKS = [("insertion", 1, "mm", (-100.0, 300.0)), ("tip_position", 3, "mm", (-1000.0, 1000.0)),
                 ("tip_axis", 3, "unit vector", (-1.0, 1.0))]
 TIME_BLOCKS = [("time_left", 1, "share of max_steps", (0.0, 1.0))]
+PHASE_BLOCKS = [("load_phase", 2, "sin, cos of the breathing cycle's phase", (-1.0, 1.0))]
 # The task options that add observation blocks, in the order their blocks follow the paper's.
-OBS_OPTIONS = ("force_obs", "scope_obs", "time_obs")
+OBS_OPTIONS = ("force_obs", "scope_obs", "time_obs", "phase_obs")
 SETTLE_S = 1.0  # the stomach settles under gravity (and load) before episodes start
 # Start states are snapshots of the stomach in its periodic steady state, this
 # many per load cycle (every 50 ms of a 4 s cycle): an episode starts at its
@@ -57,13 +58,14 @@ TARGET_YELLOW = (1.0, 0.85, 0.0, 1.0)
 ACTION_SCALE_FIELDS = ("control_period_s", "cable_mm_per_unit", "insertion_mm_per_unit")
 
 
-def obs_blocks(force_obs: bool, scope_obs: bool = False, time_obs: bool = False) -> list[tuple]:
+def obs_blocks(force_obs: bool, scope_obs: bool = False, time_obs: bool = False,
+               phase_obs: bool = False) -> list[tuple]:
     return OBS_BLOCKS + (FORCE_BLOCKS if force_obs else []) + (SCOPE_BLOCKS if scope_obs else []) \
-        + (TIME_BLOCKS if time_obs else [])
+        + (TIME_BLOCKS if time_obs else []) + (PHASE_BLOCKS if phase_obs else [])
 
 
-def obs_size(force_obs: bool, scope_obs: bool = False, time_obs: bool = False) -> int:
-    return sum(b[1] for b in obs_blocks(force_obs, scope_obs, time_obs))
+def obs_size(force_obs: bool, scope_obs: bool = False, time_obs: bool = False, phase_obs: bool = False) -> int:
+    return sum(b[1] for b in obs_blocks(force_obs, scope_obs, time_obs, phase_obs))
 
 
 def obs_options(cfg: TaskConfig) -> dict[str, bool]:
@@ -330,6 +332,7 @@ class NavigationTask:
             delta = delta + self._noise.normal(0.0, from_mm(r.target_noise_mm), 3)
             force = force + self._noise.normal(0.0, r.force_noise_n, 3)
         left = np.array([1.0 - self.steps / self.cfg.max_steps]) if self.cfg.time_obs else None
+        phase = np.array([sim.load_phase()]) if self.cfg.phase_obs else None
         return mdp.observe(np, self.cfg, delta[None], sim.tip_vel()[None], sim.cable_lengths()[None],
                            np.array([self.prev_axial]), np.array([float(self.contact.active)]),
-                           force[None], self.obs_low, self.obs_high, scope, left)[0]
+                           force[None], self.obs_low, self.obs_high, scope, left, phase)[0]

@@ -289,8 +289,9 @@ def _start_from(cfg: TrainConfig, venv):
         if have["force_obs"] != want["force_obs"] or any(have[k] and not want[k] for k in OBS_OPTIONS) \
                 or OBS_OPTIONS.index(added[0]) < last:
             raise ConfigError(f"init_from {src} observes {have}, this run {want}: a fine-tune keeps the force "
-                              "observation and can only add the scope's state (scope_obs) or the time left "
-                              "(time_obs) after the source's inputs, not drop or reorder them")
+                              "observation and can only add the scope's state (scope_obs), the time left "
+                              "(time_obs) or the breathing phase (phase_obs) after the source's inputs, not drop or "
+                              "reorder them")
         return _widened_start(cfg, venv, src)
     if cfg.normalize:
         venv = VecNormalize.load(str(src / NORM_FILE), venv)  # keeps adapting to the new stomach

@@ -198,6 +198,28 @@ def test_time_observation_counts_down_and_the_limit_then_terminates():
     assert trunc_p and not term_p and term_t and not trunc_t and not info["is_success"]
 
 
+def test_phase_observation_runs_with_the_breathing_load_and_adds_nothing_else():
+    plain, phased = EndoscopeEnv("DE"), EndoscopeEnv("DE", phase_obs=True)
+    assert phased.observation_space.shape == (17,)
+    op, _ = plain.reset(seed=5)
+    oq, _ = phased.reset(seed=5)
+    sim, dt = phased.task.sim, phased.task.control_dt
+    angles, loads = [], []
+    for _ in range(45):  # 4.5 s: more than one 4 s cycle, so both signs of the load come by
+        np.testing.assert_array_equal(op, oq[:15])  # the same physics and the paper's observation
+        assert oq[15] ** 2 + oq[16] ** 2 == pytest.approx(1.0, abs=1e-6)
+        angles.append(np.arctan2(oq[15], oq[16]))
+        op, *_ = plain.step(np.array([0.1, 0, 0, 0, 0.2]))
+        oq, *_ = phased.step(np.array([0.1, 0, 0, 0, 0.2]))
+        loads.append(sim.data.ctrl[sim.load_act])  # the load applied over that step
+    steps = np.diff(np.unwrap(angles))
+    np.testing.assert_allclose(steps, 2 * np.pi * dt / (2 * sim.half_period), atol=1e-6)  # one cycle per 4 s
+    sines, loads = np.sin(angles), np.array(loads)
+    clear = np.abs(sines) > 0.2  # away from the switches, where the sign flips within the step
+    assert clear.sum() > 30 and (loads > 0).any() and (loads < 0).any()
+    np.testing.assert_array_equal(np.sign(sines[clear]), np.sign(loads[clear]))  # +f0 while the sine is positive
+
+
 def test_target_weights_set_how_often_each_target_is_drawn():
     env = EndoscopeEnv("DE")
     hard = set(env.task.targets[env.task.contact_aided].tolist())

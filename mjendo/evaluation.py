@@ -15,6 +15,7 @@ import argparse
 import csv
 import gzip
 import io
+import json
 import math
 import os
 import subprocess
@@ -39,6 +40,7 @@ from mjendo.config import (
     POLICY_NAMES,
     VERSIONS,
     ConfigError,
+    task_config,
 )
 from mjendo.units import to_mm
 
@@ -201,14 +203,15 @@ def anatomy_name(anatomy) -> str:
 
 def run_trials(controller: str, env_name: str, seeds: list[int], keep_paths: bool = False,
                fidelity: str = "fast", version: int = CURRENT_VERSION, first: int = 0,
-               anatomy=None, steps: int = PAPER_EVAL_STEPS) -> tuple[list, list]:
+               anatomy=None, steps: int = PAPER_EVAL_STEPS, randomization=None) -> tuple[list, list]:
     """Run trials of one cell; a broken policy marks every trial with its error instead of raising."""
     from mjendo.envs import EndoscopeEnv
     from mjendo.policies import load_controller, obs_options_of, version_of
 
     try:
         env = EndoscopeEnv(env_name, **obs_options_of(controller), max_steps=steps,
-                           fidelity=fidelity, version=version_of(controller, version), anatomy=anatomy)
+                           fidelity=fidelity, version=version_of(controller, version), anatomy=anatomy,
+                           randomization=randomization)
         ctrl = load_controller(controller, env.task)
     except Exception as exc:  # reported per cell, the other cells still run
         msg = f"{type(exc).__name__}: {exc}".replace("\n", " ")
@@ -219,12 +222,12 @@ def run_trials(controller: str, env_name: str, seeds: list[int], keep_paths: boo
 
 
 def _job(args):
-    controller, env_name, seeds, keep, fidelity, version, first, anatomy, steps = args
+    controller, env_name, seeds, keep, fidelity, version, first, anatomy, steps, randomization = args
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     import torch
 
     torch.set_num_threads(1)
-    return run_trials(controller, env_name, seeds, keep, fidelity, version, first, anatomy, steps)
+    return run_trials(controller, env_name, seeds, keep, fidelity, version, first, anatomy, steps, randomization)
 
 
 def wilson(successes: int, n: int, z: float = 1.96) -> tuple[float, float]:
@@ -333,14 +336,15 @@ def _git_commit() -> str:
 
 def write_report(rows: list[dict], out: Path, command: str, wall_s: float, n: int, fidelity: str = "fast",
                  made: list | None = None, classes: list[dict] | None = None, anatomy=None,
-                 steps: int = PAPER_EVAL_STEPS) -> Path:
+                 steps: int = PAPER_EVAL_STEPS, randomization=None) -> Path:
     """report.md: ours next to the paper's tables, then every figure embedded with its caption."""
     stomach = {"fast": "the fast (reduced-order, calibrated) stomach", "full": "the full per-vertex FEM stomach"}
     lines = [
         "# mjendo evaluation vs the paper",
         "",
         f"Stomach: {stomach[fidelity]} (`fidelity={fidelity}`)"
-        + ("" if anatomy is None else f", anatomy `{anatomy}` (trials spread evenly over its stomachs)") + ".  ",
+        + ("" if anatomy is None else f", anatomy `{anatomy}` (trials spread evenly over its stomachs)")
+        + ("" if randomization is None else f", randomized per trial (`{json.dumps(randomization)}`)") + ".  ",
         f"Command: `{command}`  ",
         f"Commit: `{_git_commit()}`, wall time {wall_s / 60:.1f} min, {n} trials per cell, {steps} steps each "
         f"(success: final tip error < {PAPER_SUCCESS_MM:g} mm).",
@@ -425,10 +429,12 @@ def read_table(path: Path) -> list[dict]:
 def evaluate(trials: int = 200, controllers=CONTROLLERS, workers: int = 2, out: Path | None = None, seed: int = 0,
              command: str = "make eval", fidelity: str = "fast", envs: tuple[str, ...] | None = None,
              overwrite: bool = False, version: int = CURRENT_VERSION, anatomy=None,
-             steps: int = PAPER_EVAL_STEPS) -> dict:
+             steps: int = PAPER_EVAL_STEPS, randomization=None) -> dict:
     """Every cell's trials; policies act in the task version they trained in, the baseline in ``version``.
 
     ``anatomy``: another stomach or a set of them (TaskConfig.anatomy); trials spread evenly over a set.
+    ``randomization``: tissue, load, friction and noise drawn per trial (TaskConfig.randomization: True for
+    config.Randomization's ranges, or a dict of its fields), from the trial's seed.
     ``steps``: the trial's length (the paper's 80; longer ones measure what the trial's time costs, and
     success by step 80 in them is the 80-step trial's, the trajectories being the same).
     """
@@ -438,6 +444,8 @@ def evaluate(trials: int = 200, controllers=CONTROLLERS, workers: int = 2, out: 
         raise ConfigError("--trials, --workers and --trial-steps must be >= 1 and --seed >= 0 "
                           f"(got {trials}, {workers}, {steps}, {seed})")
     check_controllers(controllers)
+    if randomization is not None:
+        task_config(randomization=randomization)  # a bad range stops here, not as an error in every trial
     out = Path(out) if out is not None else default_out(fidelity)
     guard_overwrite(out, trials, overwrite)
     out.mkdir(parents=True, exist_ok=True)
@@ -448,7 +456,7 @@ def evaluate(trials: int = 200, controllers=CONTROLLERS, workers: int = 2, out: 
         seeds = [EVAL_SEED_BASE + seed * 100003 + i for i in range(trials)]
         for j in range(0, trials, chunk):
             keep = c == "E" and e == "DE" and j == 0
-            jobs.append((c, e, seeds[j:j + chunk], keep, fidelity, version, j, anatomy, steps))
+            jobs.append((c, e, seeds[j:j + chunk], keep, fidelity, version, j, anatomy, steps, randomization))
     t0 = time.time()
     all_trials, tip_paths = [], []
     with get_context("spawn").Pool(workers) as pool:
@@ -466,10 +474,25 @@ def evaluate(trials: int = 200, controllers=CONTROLLERS, workers: int = 2, out: 
     from mjendo import figures
 
     made = figures.all_figures(rows, tip_paths, out, [asdict(t) for t in all_trials], steps)
-    report = write_report(rows, out, command, wall, trials, fidelity, made, by_class(all_trials), anatomy, steps)
+    report = write_report(rows, out, command, wall, trials, fidelity, made, by_class(all_trials), anatomy, steps,
+                          randomization)
     print(report.read_text())
     print(f"wrote {out} in {wall / 60:.1f} min")
     return {"rows": rows, "wall_s": wall}
+
+
+def randomization_arg(text: str):
+    """--randomization: 'true', or a JSON object of config.Randomization fields (checked by the task)."""
+    if text.strip().lower() == "true":
+        return True
+    try:
+        value = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise argparse.ArgumentTypeError(f"{text!r} is neither 'true' nor a JSON object ({exc.msg}); e.g. "
+                                         "'{\"friction\": [0.2, 0.2]}'") from None
+    if not isinstance(value, dict):
+        raise argparse.ArgumentTypeError(f"{text!r} is not a JSON object of config.Randomization fields")
+    return value
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -493,12 +516,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--anatomy", type=targets.anatomy_arg,
                     help="other stomachs: a generated one's seed, a built folder, or a set (train, test: "
                     "trials spread evenly over its stomachs)")
+    ap.add_argument("--randomization", type=randomization_arg,
+                    help="tissue, load, friction and sensor noise drawn per trial: 'true' for the ranges of "
+                    "config.Randomization, or a JSON object of its fields, e.g. '{\"young_scale\": [0.33, 0.34]}'")
     a = ap.parse_args(argv)
     command = "python -m mjendo.evaluation " + " ".join(argv if argv is not None else sys.argv[1:])
     return cli.run(lambda: evaluate(a.trials, tuple(a.policies.split(",")), a.workers, a.out, a.seed, command=command,
                                     fidelity=a.fidelity, envs=tuple(a.envs.split(",")) if a.envs else None,
                                     overwrite=a.overwrite, version=a.version, anatomy=a.anatomy,
-                                    steps=a.trial_steps),
+                                    steps=a.trial_steps, randomization=a.randomization),
                    ConfigError, PolicyError)
 
 

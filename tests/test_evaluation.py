@@ -207,6 +207,25 @@ def test_a_longer_trial_replays_the_paper_trial_and_goes_on(tmp_path):
         evaluate(trials=1, controllers=("baseline",), out=tmp_path, steps=0)
 
 
+def test_randomized_trials_draw_the_load_per_trial_and_a_bad_range_stops_before_any(tmp_path):
+    # The same trials under half and one and a half times the breathing load: the targets move more
+    # under the larger, so the draw reaches the physics of every trial.
+    from mjendo.evaluation import main, run_trials
+
+    fixed = {"young_scale": [1, 1], "damping_scale": [1, 1], "half_period_s": [2, 2], "friction": [0.1, 0.1],
+             "load_tilt_deg": 0.0, "force_noise_n": 0.0, "target_noise_mm": 0.0}
+    seeds = [30_000_000 + i for i in range(2)]
+    weak, _ = run_trials("baseline", "DE", seeds, randomization={**fixed, "load_scale": [0.5, 0.5]})
+    strong, _ = run_trials("baseline", "DE", seeds, randomization={**fixed, "load_scale": [1.5, 1.5]})
+    assert not any(t.error for t in weak + strong)
+    for w, g in zip(weak, strong, strict=True):
+        assert w.target == g.target and g.target_motion_mm > 1.5 * w.target_motion_mm > 0.5
+    with pytest.raises(ConfigError, match="young_scale"):
+        evaluate(trials=1, controllers=("baseline",), out=tmp_path, randomization={"young_scale": [3, 1]})
+    with pytest.raises(SystemExit):
+        main(["--randomization", "{friction: 0.2}", "--out", str(tmp_path)])
+
+
 def test_success_by_step_climbs_to_each_cells_success_rate(tmp_path, monkeypatch):
     ts = [{"controller": "E", "env": "DE", "success": ok, "steps_to_success": s, "target_class": c}
           for ok, s, c in ((True, 20.0, "free"), (True, 90.0, "contact_aided"), (False, math.nan, "contact_aided"),

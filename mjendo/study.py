@@ -473,8 +473,14 @@ def analyse(rows: list[dict]) -> tuple[list[dict], list[dict], dict]:
             "mean_force_n": force["mean"], "seed_list": " ".join(map(str, seeds)),
         })
     comparisons = []
-    variants = [(c, split_spec(c)[0]) for c in dict.fromkeys(c for c, _ in per_cell) if split_spec(c)[1]]
-    for a, b in (*COMPARISONS, *variants):  # a variant against its policy: what its change bought
+    names = dict.fromkeys(c for c, _ in per_cell)
+    variants = [(c, split_spec(c)[0]) for c in names if split_spec(c)[1]]
+    # The paper's questions asked again of two policies trained by the same variant (E-guided - D-guided).
+    recipes = dict.fromkeys(split_spec(c)[1] for c, _ in variants)
+    same_recipe = [(f"{a}-{v}", f"{b}-{v}") for a, b in COMPARISONS for v in recipes
+                   if f"{a}-{v}" in names and f"{b}-{v}" in names]
+    # A variant against its policy says what its change bought.
+    for a, b in (*COMPARISONS, *same_recipe, *variants):
         for env in CONDITIONS:
             if (a, env) in estimates and (b, env) in estimates:
                 d = stats.difference(estimates[a, env], estimates[b, env])

@@ -226,6 +226,14 @@ def test_a_variant_is_a_study_entry_of_its_own(tmp_path, monkeypatch):
     by_stomach = {(r["policy"], r["anatomy"]): r["success_pct"] for r in study.per_stomach_rows(per_cell)}
     assert by_stomach == {("E", "100"): 100.0, ("E", "101"): 0.0, ("E-randomized", "100"): 100.0,
                           ("E-randomized", "101"): 100.0}
+    # D and E trained by the same variant: the paper's E - D asked of that recipe too, and each against its policy.
+    rows += [{**row(a, 5, ok), "controller": c, "env": "DE", "seed_trained": 0, "final_mm": 1.0,
+              "mean_force_n": 0.0} for c, a, ok in [("D", 100, True), ("D-randomized", 100, False),
+                                                      ("D-randomized", 101, False)]]
+    _, comparisons, _ = study.analyse(rows)
+    found = {c["comparison"]: c["diff_points"] for c in comparisons}
+    assert set(found) == {"E - D", "E-randomized - D-randomized", "E-randomized - E", "D-randomized - D"}
+    assert found["E-randomized - D-randomized"] == pytest.approx(100.0)
 
 
 def test_comparisons_resample_seeds_and_targets():

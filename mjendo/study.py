@@ -456,6 +456,9 @@ def analyse(rows: list[dict]) -> tuple[list[dict], list[dict], dict]:
     per_cell: dict[tuple[str, str], dict[int, list[dict]]] = {}
     for r in rows:
         per_cell.setdefault((r["controller"], r["env"]), {}).setdefault(int(r["seed_trained"]), []).append(r)
+    # Cells in one fixed order, not the order Ray's tasks finished in: the bootstrap draws from one stream,
+    # so the same trials give the same intervals on every run.
+    per_cell = dict(sorted(per_cell.items(), key=lambda kv: (kv[0][0], list(CONDITIONS).index(kv[0][1]))))
     summary, estimates = [], {}
     rng = np.random.default_rng(0)  # one stream for all estimates: their replicates are independent
     for (pol, env), by_seed in per_cell.items():

@@ -401,33 +401,89 @@ def _listed_aided(list_name: str, path: Path) -> tuple[dict, list[int]]:
     return points, [i for i in meta["lists"][list_name] if points[i]["class"] == "contact_aided"]
 
 
+def _starts(fidelity: str, list_name: str):
+    """The trial starts every contact-aided point must be reached from: SE, then each DE load phase; yields
+    the task, the start state (None: the only one) and a label."""
+    from mjendo.task import NavigationTask
+
+    for env, phase in [("SE", None)] + [("DE", p) for p in range(PHASES)]:
+        task = NavigationTask(env=env, target_list=list_name, max_steps=10**6, randomize_phase=False,
+                              fidelity=fidelity)
+        start = None if phase is None else phase * len(task.start_states) // PHASES
+        yield task, start, env if phase is None else f"{env} phase {phase}"
+
+
 def arrival_steps(list_name: str, path: Path = TARGETS_FILE, fidelity: str = "fast") -> dict[int, list[int | None]]:
     """Step (1-80) at which each listed contact-aided point's recorded demonstrator first comes within the
     success distance, in SE and from each DE load phase (None: not within the trial). The recorded one is
     the demonstrator that came closest, not necessarily the fastest: an upper bound on the time a known
     way there needs, so on how little slack a policy has. In the full stomach (the map is measured in the
     fast one) the same motions show whether, and when, the FEM wall lets the tube get there too."""
-    from mjendo.task import NavigationTask
-
     points, listed = _listed_aided(list_name, path)
     steps: dict[int, list[int | None]] = {i: [] for i in listed}
-    for run, (env, phase) in enumerate([("SE", None)] + [("DE", p) for p in range(PHASES)]):
-        task = NavigationTask(env=env, target_list=list_name, max_steps=10**6, randomize_phase=False,
-                              fidelity=fidelity)
-        start = None if phase is None else phase * len(task.start_states) // PHASES
+    for run, (task, start, where) in enumerate(_starts(fidelity, list_name)):
         for i in listed:
             steps[i].append(replay_demo(task, DEMOS[points[i]["demos"][run]], i, start)[0])
-        where = env if phase is None else f"{env} phase {phase}"
         print(f"  {fidelity} {where}: {len(listed)} demonstrators replayed ({run + 1}/{1 + PHASES})", flush=True)
     return steps
 
 
-def _slack_report(list_name: str, fidelity: str) -> str:
+def fastest_arrivals(list_name: str, path: Path = TARGETS_FILE, demos: list[int] | None = None,
+                     ) -> dict[int, list[int | None]]:
+    """Like :func:`arrival_steps`, but the earliest arrival over every demonstrator of ``demos`` (indices
+    into DEMOS; None: all 180), not the recorded one's: the fastest known way to each point from each start.
+    The target is not physical, so one replay per demonstrator and start measures every listed point."""
+    points, listed = _listed_aided(list_name, path)
+    demos = list(range(len(DEMOS))) if demos is None else demos
+    steps: dict[int, list[int | None]] = {i: [] for i in listed}
+    for run, (task, start, where) in enumerate(_starts("fast", list_name)):
+        rows = np.array([int(np.flatnonzero(task.targets == i)[0]) for i in listed])
+        first = np.full(len(listed), TRIAL_STEPS + 1)
+        for d in demos:
+            task.reset(np.random.default_rng(0), start)
+            for k in range(min(TRIAL_STEPS, int(first.max()) - 1)):  # no demonstrator can beat an arrival by then
+                task.step(demo_action(DEMOS[d], k))
+                dist = to_mm(np.linalg.norm(task.list_positions()[rows] - task.sim.tip_pos(), axis=1))
+                first = np.where(dist < PAPER_SUCCESS_MM, np.minimum(first, k + 1), first)
+        for i, s in zip(listed, first, strict=True):
+            steps[i].append(int(s) if s <= TRIAL_STEPS else None)
+        print(f"  {where}: {len(demos)} demonstrators replayed ({run + 1}/{1 + PHASES})", flush=True)
+    return steps
+
+
+SLACK_BINS = ((1, 60), (61, 70), (71, 75), (76, TRIAL_STEPS))  # latest arrival's step: 20, 10, 5 or fewer to spare
+
+
+def success_by_slack(latest: dict[int, int | None], per_target: Path) -> str:
+    """A study's success per contact-aided target (its per_target.csv), by how late the fastest known way
+    arrives from the worst start: whether a policy's misses are the targets that leave it no time."""
+    import csv
+
+    with open(per_target) as f:
+        rows = [r for r in csv.DictReader(f) if int(r["target"]) in latest]
+    if not rows:
+        raise ConfigError(f"{per_target} holds none of this list's contact-aided targets: give the "
+                          "per_target.csv of a study over the same list (its envs DE or SE for list A)")
+    lines = ["policy, env: success on the contact-aided targets whose latest known arrival is at step " +
+             ", ".join(f"{lo}-{hi}" for lo, hi in SLACK_BINS) + " (targets)"]
+    for key in dict.fromkeys((r["policy"], r["env"]) for r in rows):
+        cells = []
+        for lo, hi in SLACK_BINS:
+            sel = [r for r in rows if (r["policy"], r["env"]) == key and lo <= (latest[int(r["target"])] or 0) <= hi]
+            trials = sum(int(r["trials"]) for r in sel)
+            won = sum(float(r["success_pct"]) * int(r["trials"]) / 100 for r in sel)
+            cells.append(f"{100 * won / trials:.1f} % ({len(sel)})" if trials else "- (0)")
+        lines.append(f"  {key[0]}, {key[1]}: " + ", ".join(cells))
+    return "\n".join(lines)
+
+
+def _slack_report(list_name: str, fidelity: str, fastest: bool = False, per_target: Path | None = None) -> str:
     """``slack``'s summary; for the full stomach also each trial's arrival against the fast stomach's."""
-    steps = arrival_steps(list_name, fidelity=fidelity)
-    latest = [max(s) if None not in s else None for s in steps.values()]
-    arrived = np.array([s for s in latest if s is not None])
-    line = (f"list {list_name}, {fidelity} stomach: {len(latest)} contact-aided targets; the demonstrator arrives "
+    steps = fastest_arrivals(list_name) if fastest else arrival_steps(list_name, fidelity=fidelity)
+    latest = {i: max(s) if None not in s else None for i, s in steps.items()}
+    arrived = np.array([s for s in latest.values() if s is not None])
+    which = "fastest of all demonstrators" if fastest else "recorded demonstrator"
+    line = (f"list {list_name}, {fidelity} stomach: {len(latest)} contact-aided targets; the {which} arrives "
             f"(latest of SE and the {PHASES} DE phases) by step {TRIAL_STEPS} at {len(arrived)}")
     if len(arrived):
         line += (f"; median step {np.median(arrived):.0f}, quartiles {np.percentile(arrived, 25):.0f}-"
@@ -443,6 +499,8 @@ def _slack_report(list_name: str, fidelity: str) -> str:
             line += (f", {np.median(late):+.0f} steps later (median; quartiles {np.percentile(late, 25):+.0f} to "
                      f"{np.percentile(late, 75):+.0f})")
         lines.append(line)
+    if per_target is not None:
+        lines.append(success_by_slack(latest, per_target))
     return "\n".join(lines)
 
 
@@ -642,6 +700,10 @@ def main(argv: list[str] | None = None) -> int:
     sl.add_argument("--list", default="A", choices=("A", "B"))
     sl.add_argument("--fidelity", default="fast", choices=tuple(FIDELITIES),
                     help="full: the same motions in the FEM stomach (about 40 min on one core)")
+    sl.add_argument("--fastest", action="store_true", help="the earliest arrival over all 180 demonstrators, "
+                    "not the recorded one's (fast stomach; 900 trials, about 5 min on one core)")
+    sl.add_argument("--per-target", type=Path, help="a study's per_target.csv: its success on these targets "
+                    "by how late the known way arrives")
     ol = sub.add_parser("open-loop", help="each listed contact-aided target's static-stomach demonstrator replayed "
                         "unchanged from phases of the moving stomach: does the plan survive the wall's motion")
     ol.add_argument("--list", default="A", choices=("A", "B"))
@@ -659,7 +721,13 @@ def main(argv: list[str] | None = None) -> int:
             print(f"wrote {figure(args.out)}")
             return
         if args.cmd == "slack":
-            print(_slack_report(args.list, args.fidelity))
+            if args.fastest and args.fidelity != "fast":
+                raise ConfigError("--fastest replays the demonstrators in the fast stomach, where the map "
+                                  "measured them: drop --fidelity full or --fastest")
+            if args.per_target is not None and not args.per_target.is_file():
+                raise ConfigError(f"{args.per_target} does not exist: give the per_target.csv a study wrote "
+                                  "(python -m mjendo.study ... --out DIR writes DIR/per_target.csv)")
+            print(_slack_report(args.list, args.fidelity, args.fastest, args.per_target))
             return
         if args.cmd == "open-loop":
             closest = open_loop(args.list, args.env, args.phases, args.hold_load)

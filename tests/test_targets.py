@@ -160,6 +160,46 @@ def test_slack_report_compares_the_full_stomach_trial_by_trial_even_when_nothing
                                                        "the trial in the full one")
 
 
+def test_the_fastest_known_way_is_never_later_than_the_recorded_one(tmp_path):
+    # One contact-aided target, its recorded demonstrators (one per start) raced against each other from every
+    # start: from each start the fastest arrives no later than that start's own recorded one, and the recorded
+    # one alone (SE's, replayed from SE) gives exactly its own arrival.
+    meta = targets.read_map(targets.TARGETS_FILE)
+    meta["lists"]["A"] = aided("A")[:1]
+    path = tmp_path / "targets.json"
+    path.write_text(json.dumps(meta))
+    (point, recorded), = targets.arrival_steps("A", path).items()
+    demos = sorted(set(POINTS[point]["demos"]))
+    (_, fastest), = targets.fastest_arrivals("A", path, demos=demos).items()
+    assert len(fastest) == 1 + targets.PHASES and None not in fastest
+    assert all(f <= r for f, r in zip(fastest, recorded, strict=True)), (fastest, recorded)
+    se_only = targets.fastest_arrivals("A", path, demos=[POINTS[point]["demos"][0]])
+    assert se_only[point][0] == recorded[0]
+
+
+def test_success_by_slack_weighs_each_target_by_its_trials(tmp_path):
+    # Success is pooled over the trials of the targets in each bin of latest arrival; targets outside the list
+    # are ignored, and a file about other targets is refused with what to give instead.
+    from mjendo.config import ConfigError
+
+    csv = tmp_path / "per_target.csv"
+    csv.write_text("policy,env,target,class,trials,success_pct\n"
+                   "E,DE,1,contact_aided,4,100.0\nE,DE,2,contact_aided,12,50.0\nE,DE,3,contact_aided,4,0.0\n"
+                   "E,DE,99,free,8,0.0\n")
+    report = targets.success_by_slack({1: 55, 2: 58, 3: 79}, csv)
+    assert report.splitlines()[1] == "  E, DE: 62.5 % (2), - (0), - (0), 0.0 % (1)"  # (4 + 6) of 16 trials
+    with pytest.raises(ConfigError, match="holds none of this list's contact-aided targets"):
+        targets.success_by_slack({7: 60}, csv)
+
+
+def test_slack_refuses_what_it_cannot_measure_before_replaying_anything(tmp_path, capsys):
+    # Both refusals come before any simulation: one line naming the problem and the fix, exit status 2.
+    assert targets.main(["slack", "--fastest", "--fidelity", "full"]) == 2
+    assert "--fastest replays the demonstrators in the fast stomach" in capsys.readouterr().err
+    assert targets.main(["slack", "--per-target", str(tmp_path / "missing.csv")]) == 2
+    assert "missing.csv does not exist: give the per_target.csv a study wrote" in capsys.readouterr().err
+
+
 @pytest.mark.slow
 def test_slack_in_the_full_stomach_replays_the_same_motions(tmp_path):
     # The fast stomach's demonstrators in the FEM one: one result per start, and no arrival sooner than 30 steps

@@ -701,7 +701,7 @@ def main(argv: list[str] | None = None) -> int:
     sl.add_argument("--fidelity", default="fast", choices=tuple(FIDELITIES),
                     help="full: the same motions in the FEM stomach (about 40 min on one core)")
     sl.add_argument("--fastest", action="store_true", help="the earliest arrival over all 180 demonstrators, "
-                    "not the recorded one's (fast stomach; 900 trials, about 5 min on one core)")
+                    "not the recorded one's (fast stomach; up to 900 trials of 80 steps)")
     sl.add_argument("--per-target", type=Path, help="a study's per_target.csv: its success on these targets "
                     "by how late the known way arrives")
     ol = sub.add_parser("open-loop", help="each listed contact-aided target's static-stomach demonstrator replayed "

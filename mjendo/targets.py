@@ -401,16 +401,24 @@ def _listed_aided(list_name: str, path: Path) -> tuple[dict, list[int]]:
     return points, [i for i in meta["lists"][list_name] if points[i]["class"] == "contact_aided"]
 
 
-def _starts(fidelity: str, list_name: str):
-    """The trial starts every contact-aided point must be reached from: SE, then each DE load phase; yields
-    the task, the start state (None: the only one) and a label."""
+def _starts(fidelity: str, list_name: str, phases: int = PHASES, env: str = "DE"):
+    """The trial starts every contact-aided point must be reached from: SE, then ``phases`` evenly spaced load
+    phases of ``env`` (the map's 4 of DE, or more to look between them, or a stronger load); yields the task,
+    the start state (None: the only one) and a label."""
     from mjendo.task import NavigationTask
 
-    for env, phase in [("SE", None)] + [("DE", p) for p in range(PHASES)]:
+    for env, phase in [("SE", None)] + [(env, p) for p in range(phases)]:
         task = NavigationTask(env=env, target_list=list_name, max_steps=10**6, randomize_phase=False,
                               fidelity=fidelity)
-        start = None if phase is None else phase * len(task.start_states) // PHASES
-        yield task, start, env if phase is None else f"{env} phase {phase}"
+        start = None if phase is None else phase * len(task.start_states) // phases
+        yield task, start, env if phase is None else f"{env} phase {phase}/{phases}"
+
+
+def recorded_demos(list_name: str, path: Path = TARGETS_FILE) -> list[int]:
+    """The demonstrators the map recorded for the list's contact-aided points (any start): the ones worth
+    racing from start phases the map did not try."""
+    points, listed = _listed_aided(list_name, path)
+    return sorted({d for i in listed for d in points[i]["demos"]})
 
 
 def arrival_steps(list_name: str, path: Path = TARGETS_FILE, fidelity: str = "fast") -> dict[int, list[int | None]]:
@@ -429,14 +437,15 @@ def arrival_steps(list_name: str, path: Path = TARGETS_FILE, fidelity: str = "fa
 
 
 def fastest_arrivals(list_name: str, path: Path = TARGETS_FILE, demos: list[int] | None = None,
-                     ) -> dict[int, list[int | None]]:
+                     phases: int = PHASES, env: str = "DE") -> dict[int, list[int | None]]:
     """Like :func:`arrival_steps`, but the earliest arrival over every demonstrator of ``demos`` (indices
-    into DEMOS; None: all 180), not the recorded one's: the fastest known way to each point from each start.
-    The target is not physical, so one replay per demonstrator and start measures every listed point."""
+    into DEMOS; None: all 180), not the recorded one's: the fastest known way to each point from SE and each
+    of ``phases`` starts of ``env`` (DE, or UE1 and UE2's stronger loads). The target is not physical, so
+    one replay per demonstrator and start measures every listed point."""
     points, listed = _listed_aided(list_name, path)
     demos = list(range(len(DEMOS))) if demos is None else demos
     steps: dict[int, list[int | None]] = {i: [] for i in listed}
-    for run, (task, start, where) in enumerate(_starts("fast", list_name)):
+    for run, (task, start, where) in enumerate(_starts("fast", list_name, phases, env)):
         rows = np.array([int(np.flatnonzero(task.targets == i)[0]) for i in listed])
         first = np.full(len(listed), TRIAL_STEPS + 1)
         for d in demos:
@@ -447,7 +456,7 @@ def fastest_arrivals(list_name: str, path: Path = TARGETS_FILE, demos: list[int]
                 first = np.where(dist < PAPER_SUCCESS_MM, np.minimum(first, k + 1), first)
         for i, s in zip(listed, first, strict=True):
             steps[i].append(int(s) if s <= TRIAL_STEPS else None)
-        print(f"  {where}: {len(demos)} demonstrators replayed ({run + 1}/{1 + PHASES})", flush=True)
+        print(f"  {where}: {len(demos)} demonstrators replayed ({run + 1}/{1 + phases})", flush=True)
     return steps
 
 
@@ -477,18 +486,27 @@ def success_by_slack(latest: dict[int, int | None], per_target: Path) -> str:
     return "\n".join(lines)
 
 
-def _slack_report(list_name: str, fidelity: str, fastest: bool = False, per_target: Path | None = None) -> str:
-    """``slack``'s summary; for the full stomach also each trial's arrival against the fast stomach's."""
-    steps = fastest_arrivals(list_name) if fastest else arrival_steps(list_name, fidelity=fidelity)
+def _slack_report(list_name: str, fidelity: str, fastest: bool = False, per_target: Path | None = None,
+                  phases: int = PHASES, demos: list[int] | None = None, env: str = "DE") -> str:
+    """``slack``'s summary; for the full stomach also each trial's arrival against the fast stomach's; from
+    more start phases than the map's, how many (target, start) pairs a known way reaches at all."""
+    steps = fastest_arrivals(list_name, demos=demos, phases=phases, env=env) if fastest \
+        else arrival_steps(list_name, fidelity=fidelity)
     latest = {i: max(s) if None not in s else None for i, s in steps.items()}
     arrived = np.array([s for s in latest.values() if s is not None])
-    which = "fastest of all demonstrators" if fastest else "recorded demonstrator"
+    which = ("fastest of all demonstrators" if demos is None else f"fastest of {len(demos)} demonstrators") \
+        if fastest else "recorded demonstrator"
     line = (f"list {list_name}, {fidelity} stomach: {len(latest)} contact-aided targets; the {which} arrives "
-            f"(latest of SE and the {PHASES} DE phases) by step {TRIAL_STEPS} at {len(arrived)}")
+            f"(latest of SE and the {phases} {env} phases) by step {TRIAL_STEPS} at {len(arrived)}")
     if len(arrived):
         line += (f"; median step {np.median(arrived):.0f}, quartiles {np.percentile(arrived, 25):.0f}-"
                  f"{np.percentile(arrived, 75):.0f}, after step 70 at {np.mean(arrived > 70):.0%}")
     lines = [line]
+    if phases != PHASES or env != "DE":
+        reached = np.array([[a is not None for a in s] for s in steps.values()])
+        lines.append(f"(target, start) pairs a known way reaches within the trial: {reached.mean():.1%} of "
+                     f"{reached.size}; {env} starts only: {reached[:, 1:].mean():.1%}; targets missed from some start: "
+                     f"{(~reached).any(axis=1).sum()}")
     if fidelity != "fast":
         fast = arrival_steps(list_name)
         pairs = [(a, b) for i in steps for a, b in zip(fast[i], steps[i], strict=True) if a is not None]
@@ -704,6 +722,12 @@ def main(argv: list[str] | None = None) -> int:
                     "not the recorded one's (fast stomach; up to 900 trials of 80 steps)")
     sl.add_argument("--per-target", type=Path, help="a study's per_target.csv: its success on these targets "
                     "by how late the known way arrives")
+    sl.add_argument("--phases", type=int, default=PHASES, help=f"DE start phases, evenly spaced over the load "
+                    f"cycle (with --fastest; the map checked {PHASES}): is every target reachable between them too")
+    sl.add_argument("--env", default="DE", choices=("DE", "UE1", "UE2"), help="with --fastest, the moving stomach "
+                    "whose phases to start from (the map checked DE)")
+    sl.add_argument("--recorded-demos", action="store_true", help="with --fastest, race only the demonstrators "
+                    "the map recorded for the list's targets instead of all 180")
     ol = sub.add_parser("open-loop", help="each listed contact-aided target's static-stomach demonstrator replayed "
                         "unchanged from phases of the moving stomach: does the plan survive the wall's motion")
     ol.add_argument("--list", default="A", choices=("A", "B"))
@@ -727,7 +751,15 @@ def main(argv: list[str] | None = None) -> int:
             if args.per_target is not None and not args.per_target.is_file():
                 raise ConfigError(f"{args.per_target} does not exist: give the per_target.csv a study wrote "
                                   "(python -m mjendo.study ... --out DIR writes DIR/per_target.csv)")
-            print(_slack_report(args.list, args.fidelity, args.fastest, args.per_target))
+            if not args.fastest and (args.phases != PHASES or args.recorded_demos or args.env != "DE"):
+                raise ConfigError(f"the map recorded a demonstrator for {PHASES} DE phases only: add --fastest to "
+                                  "race demonstrators from other phases, loads or a subset of them")
+            from mjendo.task import PHASES_PER_CYCLE
+
+            if not 1 <= args.phases <= PHASES_PER_CYCLE:
+                raise ConfigError(f"--phases {args.phases}: give 1 to {PHASES_PER_CYCLE} start phases per load cycle")
+            print(_slack_report(args.list, args.fidelity, args.fastest, args.per_target, args.phases,
+                                recorded_demos(args.list) if args.recorded_demos else None, args.env))
             return
         if args.cmd == "open-loop":
             closest = open_loop(args.list, args.env, args.phases, args.hold_load)

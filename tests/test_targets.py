@@ -1,6 +1,7 @@
 """The reachability map and the target lists: classes follow the rule, and free space really misses them."""
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -132,13 +133,19 @@ def test_a_missing_target_table_says_how_to_make_it(tmp_path):
     assert targets.load(0, tmp_path / "targets.json").lists["A"]  # version 0's vertex targets need no table
 
 
+def map_with_list_a(tmp_path, n: int) -> Path:
+    """The committed map with list A cut to its first ``n`` contact-aided targets: replays that stay short."""
+    meta = targets.read_map(targets.TARGETS_FILE)
+    meta["lists"]["A"] = aided("A")[:n]
+    path = tmp_path / "targets.json"
+    path.write_text(json.dumps(meta))
+    return path
+
+
 def test_slack_replays_each_demonstrator_to_its_first_arrival(tmp_path):
     # Two of list A's contact-aided targets: each recorded demonstrator arrives within the trial, in SE and from
     # every load phase, and none sooner than 30 steps (75 mm of full-speed insertion): they lie deep.
-    meta = targets.read_map(targets.TARGETS_FILE)
-    meta["lists"]["A"] = aided("A")[:2]
-    path = tmp_path / "targets.json"
-    path.write_text(json.dumps(meta))
+    path = map_with_list_a(tmp_path, 2)
     steps = targets.arrival_steps("A", path)
     assert list(steps) == aided("A")[:2]
     for point, per_run in steps.items():
@@ -164,10 +171,7 @@ def test_the_fastest_known_way_is_never_later_than_the_recorded_one(tmp_path):
     # One contact-aided target, its recorded demonstrators (one per start) raced against each other from every
     # start: from each start the fastest arrives no later than that start's own recorded one, and the recorded
     # one alone (SE's, replayed from SE) gives exactly its own arrival.
-    meta = targets.read_map(targets.TARGETS_FILE)
-    meta["lists"]["A"] = aided("A")[:1]
-    path = tmp_path / "targets.json"
-    path.write_text(json.dumps(meta))
+    path = map_with_list_a(tmp_path, 1)
     (point, recorded), = targets.arrival_steps("A", path).items()
     demos = sorted(set(POINTS[point]["demos"]))
     (_, fastest), = targets.fastest_arrivals("A", path, demos=demos).items()
@@ -175,6 +179,18 @@ def test_the_fastest_known_way_is_never_later_than_the_recorded_one(tmp_path):
     assert all(f <= r for f, r in zip(fastest, recorded, strict=True)), (fastest, recorded)
     se_only = targets.fastest_arrivals("A", path, demos=[POINTS[point]["demos"][0]])
     assert se_only[point][0] == recorded[0]
+
+
+def test_more_start_phases_include_the_maps_own(tmp_path):
+    # Racing the recorded demonstrators from 8 DE phases: SE and every other phase are the map's 4 starts, so the
+    # fastest arrivals there equal the 4-phase race's; the phases between them are new starts, each measured.
+    path = map_with_list_a(tmp_path, 1)
+    demos = targets.recorded_demos("A", path)
+    assert demos == sorted(set(POINTS[aided("A")[0]]["demos"]))
+    (_, four), = targets.fastest_arrivals("A", path, demos=demos).items()
+    (_, eight), = targets.fastest_arrivals("A", path, demos=demos, phases=8).items()
+    assert len(eight) == 1 + 8 and eight[0] == four[0] and eight[1::2] == four[1:], (four, eight)
+    assert all(s is None or 30 <= s <= targets.TRIAL_STEPS for s in eight[2::2]), eight
 
 
 def test_success_by_slack_weighs_each_target_by_its_trials(tmp_path):
@@ -198,16 +214,18 @@ def test_slack_refuses_what_it_cannot_measure_before_replaying_anything(tmp_path
     assert "--fastest replays the demonstrators in the fast stomach" in capsys.readouterr().err
     assert targets.main(["slack", "--per-target", str(tmp_path / "missing.csv")]) == 2
     assert "missing.csv does not exist: give the per_target.csv a study wrote" in capsys.readouterr().err
+    for args in (["--phases", "8"], ["--env", "UE2"], ["--recorded-demos"]):
+        assert targets.main(["slack", *args]) == 2
+        assert "add --fastest to race demonstrators from other phases" in capsys.readouterr().err
+    assert targets.main(["slack", "--fastest", "--phases", "0"]) == 2
+    assert "--phases 0: give 1 to" in capsys.readouterr().err
 
 
 @pytest.mark.slow
 def test_slack_in_the_full_stomach_replays_the_same_motions(tmp_path):
     # The fast stomach's demonstrators in the FEM one: one result per start, and no arrival sooner than 30 steps
     # (the target lies deeper than 75 mm of full-speed insertion whichever stomach holds it).
-    meta = targets.read_map(targets.TARGETS_FILE)
-    meta["lists"]["A"] = aided("A")[:1]
-    path = tmp_path / "targets.json"
-    path.write_text(json.dumps(meta))
+    path = map_with_list_a(tmp_path, 1)
     (point, per_run), = targets.arrival_steps("A", path, fidelity="full").items()
     assert point == aided("A")[0] and len(per_run) == 1 + targets.PHASES
     assert all(s is None or 30 <= s <= targets.TRIAL_STEPS for s in per_run), per_run
@@ -220,10 +238,7 @@ def test_open_loop_replays_the_static_plan_from_load_phases_of_the_moving_stomac
     # the outcome again; the static stomach has no phases to replay from.
     from mjendo.config import ConfigError
 
-    meta = targets.read_map(targets.TARGETS_FILE)
-    meta["lists"]["A"] = aided("A")[:2]
-    path = tmp_path / "targets.json"
-    path.write_text(json.dumps(meta))
+    path = map_with_list_a(tmp_path, 2)
     moving = targets.open_loop("A", "DE", phases=2, path=path)
     held = targets.open_loop("A", "DE", phases=2, hold_load=True, path=path)
     assert moving.shape == held.shape == (2, 2)

@@ -407,11 +407,11 @@ def _starts(fidelity: str, list_name: str, phases: int = PHASES, env: str = "DE"
     the start state (None: the only one) and a label."""
     from mjendo.task import NavigationTask
 
-    for env, phase in [("SE", None)] + [(env, p) for p in range(phases)]:
-        task = NavigationTask(env=env, target_list=list_name, max_steps=10**6, randomize_phase=False,
+    for name, phase in [("SE", None)] + [(env, p) for p in range(phases)]:
+        task = NavigationTask(env=name, target_list=list_name, max_steps=10**6, randomize_phase=False,
                               fidelity=fidelity)
         start = None if phase is None else phase * len(task.start_states) // phases
-        yield task, start, env if phase is None else f"{env} phase {phase}/{phases}"
+        yield task, start, name if phase is None else f"{name} phase {phase}/{phases}"
 
 
 def recorded_demos(list_name: str, path: Path = TARGETS_FILE) -> list[int]:
@@ -722,7 +722,7 @@ def main(argv: list[str] | None = None) -> int:
                     "not the recorded one's (fast stomach; up to 900 trials of 80 steps)")
     sl.add_argument("--per-target", type=Path, help="a study's per_target.csv: its success on these targets "
                     "by how late the known way arrives")
-    sl.add_argument("--phases", type=int, default=PHASES, help=f"DE start phases, evenly spaced over the load "
+    sl.add_argument("--phases", type=int, default=PHASES, help=f"start phases of --env, evenly spaced over the load "
                     f"cycle (with --fastest; the map checked {PHASES}): is every target reachable between them too")
     sl.add_argument("--env", default="DE", choices=("DE", "UE1", "UE2"), help="with --fastest, the moving stomach "
                     "whose phases to start from (the map checked DE)")

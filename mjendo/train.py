@@ -264,12 +264,17 @@ def build_ppo(cfg: TrainConfig, venv, tensorboard_log: str | None = None):
     from stable_baselines3 import PPO
 
     p = cfg.ppo
-    return PPO("MlpPolicy", venv, seed=cfg.seed, device=torch_device(cfg), verbose=0, tensorboard_log=tensorboard_log,
+    policy, kwargs = "MlpPolicy", {}
+    if cfg.critic_only:
+        from mjendo.asymmetric import AsymmetricPolicy, actor_inputs
+
+        policy, kwargs = AsymmetricPolicy, {"actor_inputs": actor_inputs(cfg.task_config(), cfg.critic_only)}
+    return PPO(policy, venv, seed=cfg.seed, device=torch_device(cfg), verbose=0, tensorboard_log=tensorboard_log,
                learning_rate=learning_rate_schedule(cfg), n_steps=p.n_steps, batch_size=p.batch_size,
                n_epochs=p.n_epochs, gamma=p.gamma, gae_lambda=p.gae_lambda, clip_range=p.clip_range,
                ent_coef=p.ent_coef,
                policy_kwargs={"net_arch": {"pi": list(p.net_arch), "vf": list(p.net_arch)},
-                              "activation_fn": torch.nn.Tanh, "log_std_init": p.log_std_init})
+                              "activation_fn": torch.nn.Tanh, "log_std_init": p.log_std_init, **kwargs})
 
 
 def _start_from(cfg: TrainConfig, venv):
@@ -305,6 +310,9 @@ def _start_from(cfg: TrainConfig, venv):
                      n_steps=p.n_steps, batch_size=p.batch_size, n_epochs=p.n_epochs, gamma=p.gamma,
                      gae_lambda=p.gae_lambda, clip_range=p.clip_range, ent_coef=p.ent_coef)
     model.num_timesteps = 0  # this run's budget counts from here
+    if cfg.critic_only and getattr(model.policy, "actor_inputs", None) is None:
+        raise ConfigError(f"init_from {src} already acts on {cfg.critic_only}: they cannot become critic-only "
+                          "inputs; start from a policy that does not observe them (it is widened) or from scratch")
     return model
 
 

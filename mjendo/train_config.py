@@ -150,6 +150,9 @@ class TrainConfig:
     uniformly from 0 (0: none; mjendo.demonstrations); the maximum falls linearly to 0 at guide_decay_steps"""
     guide_decay_steps: int = 0
     """steps after which training is unguided (0: the whole budget)"""
+    critic_only: list[str] = field(default_factory=list)
+    """observation options (scope_obs, time_obs, phase_obs; on in the task block too) whose blocks only the value
+    function sees: an asymmetric actor-critic (mjendo.asymmetric); the policy acts on the rest"""
 
     @property
     def rollout_size(self) -> int:
@@ -191,6 +194,12 @@ class TrainConfig:
         if self.guide_steps and self.task_config().version < 1:
             raise ConfigError("guided starts replay the reachability map's demonstrators, which task version 0 "
                               "(vertex targets) has none of: use version 1 or guide_steps 0")
+        if self.critic_only:
+            from mjendo.asymmetric import actor_inputs
+
+            if self.backend == "warp":
+                raise ConfigError("critic_only needs the cpu backend (its inputs are not in the batched observation)")
+            actor_inputs(self.task_config(), self.critic_only)
         for name in ("checkpoint_every", "eval_every", "eval_episodes"):
             if getattr(self, name) < 1:
                 raise ConfigError(f"{name} must be >= 1")

@@ -347,6 +347,7 @@ def test_same_seed_same_machine_trains_bit_identical_weights(short_run, tmp_path
 @pytest.mark.parametrize("variant,size,mean_range,spread", [
     ("randomized-scope", 22, (0.0, 160.0), 10.0),   # insertion depth first, in mm
     ("short-horizon-timed", 16, (0.0, 1.0), 0.1),   # the share of the trial left
+    ("guided-free-pool-critic", 25, (0.0, 160.0), 10.0),  # critic-only insertion depth, tip pose, time, phase
 ])
 def test_a_fine_tune_that_adds_inputs_starts_acting_and_valuing_as_its_source(monkeypatch, variant, size, mean_range,
                                                                                spread):
@@ -408,3 +409,48 @@ def test_a_fine_tune_adds_inputs_only_after_the_sources(monkeypatch):
                         lambda _d: {"force_obs": True, "scope_obs": False, "time_obs": False, "phase_obs": True})
     with pytest.raises(ConfigError, match="breathing phase .* not drop or reorder"):
         train_module._start_from(cfg, None)  # the time left would land before the source's phase
+
+
+def test_an_asymmetric_critic_values_inputs_the_policy_never_acts_on(short_run, tmp_path):
+    import yaml
+    from stable_baselines3 import PPO
+
+    from mjendo.asymmetric import AsymmetricPolicy
+
+    raw = yaml.safe_load((short_run[0].parent.parent / "policies.yaml").read_text())
+    raw["variants"]["asym"] = {"policy": "D", "critic_only": ["scope_obs", "time_obs", "phase_obs"],
+                               "task": {"scope_obs": True, "time_obs": True, "phase_obs": True}}
+    (tmp_path / "policies.yaml").write_text(yaml.safe_dump(raw))
+    run = train("D", timesteps=256, out=tmp_path, config_file=tmp_path / "policies.yaml", variant="asym")
+    model = PPO.load(str(run / "model.zip"), device="cpu")
+    assert isinstance(model.policy, AsymmetricPolicy) and model.policy.actor_inputs == 11
+    ctrl = PPOController.from_folder(run)  # the evaluation's controller, built from meta.json like any policy
+    env = EndoscopeEnv("DE", force_obs=False, scope_obs=True, time_obs=True, phase_obs=True)
+    obs, _ = env.reset(seed=3)
+    seen = [obs]
+    for _ in range(15):  # insert and bend: the scope's state, the time and the phase all change
+        obs, *_ = env.step(np.array([0.4, 0.0, 0.0, 0.0, 0.4]))
+        seen.append(obs)
+    seen = np.array(seen)
+    swapped = seen.copy()
+    swapped[:, 11:] = seen[::-1, 11:]  # the critic-only inputs of other states
+    assert np.ptp(seen[:, 11:], axis=0).max() > 1.0
+    np.testing.assert_array_equal(ctrl.act(seen, None), ctrl.act(swapped, None))
+    import torch
+
+    with torch.no_grad():
+        values = [model.policy.predict_values(torch.as_tensor(ctrl.normalize(o))).numpy() for o in (seen, swapped)]
+    assert np.abs(values[0] - values[1]).max() > 1e-3  # the critic does weigh them
+
+
+@pytest.mark.parametrize("task,critic_only,message", [
+    ({"scope_obs": True}, ["force_obs"], "cannot be critic-only inputs"),
+    ({}, ["scope_obs"], "which the task does not observe"),
+    ({"scope_obs": True, "phase_obs": True}, ["scope_obs"], "must come after every block the policy sees"),
+])
+def test_critic_only_inputs_are_validated(tmp_path, task, critic_only, message):
+    def edit(raw):
+        raw["variants"]["bad"] = {"policy": "E", "task": task, "critic_only": critic_only}
+
+    with pytest.raises(ConfigError, match=message):
+        load_config("E", _yaml_with(tmp_path, edit), "bad")

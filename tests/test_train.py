@@ -441,6 +441,13 @@ def test_an_asymmetric_critic_values_inputs_the_policy_never_acts_on(short_run, 
     with torch.no_grad():
         values = [model.policy.predict_values(torch.as_tensor(ctrl.normalize(o))).numpy() for o in (seen, swapped)]
     assert np.abs(values[0] - values[1]).max() > 1e-3  # the critic does weigh them
+    # A policy that already acts on those inputs cannot be continued with them hidden from it.
+    raw["variants"]["seeing"] = {**raw["variants"]["asym"], "critic_only": []}
+    (tmp_path / "policies.yaml").write_text(yaml.safe_dump(raw))
+    seeing = train("D", timesteps=128, out=tmp_path, config_file=tmp_path / "policies.yaml", variant="seeing")
+    with pytest.raises(ConfigError, match="already acts on"):
+        train("D", timesteps=128, out=tmp_path / "x", config_file=tmp_path / "policies.yaml", variant="asym",
+              init_from=seeing, fidelity="fast")
 
 
 @pytest.mark.parametrize("task,critic_only,message", [

@@ -291,12 +291,10 @@ def _start_from(cfg: TrainConfig, venv):
         # New blocks must come after all of the source's (widening appends inputs): none dropped, none in between.
         added = [k for k in OBS_OPTIONS if want[k] and not have[k]]
         last = max((OBS_OPTIONS.index(k) for k in OBS_OPTIONS if have[k]), default=-1)
-        if have["force_obs"] != want["force_obs"] or any(have[k] and not want[k] for k in OBS_OPTIONS) \
-                or OBS_OPTIONS.index(added[0]) < last:
-            raise ConfigError(f"init_from {src} observes {have}, this run {want}: a fine-tune keeps the force "
-                              "observation and can only add the scope's state (scope_obs), the time left "
-                              "(time_obs) or the breathing phase (phase_obs) after the source's inputs, not drop or "
-                              "reorder them")
+        if any(have[k] and not want[k] for k in OBS_OPTIONS) or OBS_OPTIONS.index(added[0]) < last:
+            raise ConfigError(f"init_from {src} observes {have}, this run {want}: a fine-tune can only add the "
+                              "contact force (force_obs), the scope's state (scope_obs), the time left (time_obs) or "
+                              "the breathing phase (phase_obs) after the source's inputs, not drop or reorder them")
         return _widened_start(cfg, venv, src)
     if cfg.normalize:
         venv = VecNormalize.load(str(src / NORM_FILE), venv)  # keeps adapting to the new stomach
@@ -317,7 +315,8 @@ def _start_from(cfg: TrainConfig, venv):
 
 
 def _widened_start(cfg: TrainConfig, venv, src: Path):
-    """A PPO that also observes the scope's state or the time left, acting at first exactly as the policy in ``src``."""
+    """A PPO that also observes more (contact force, scope state, time left, phase), acting at first exactly as the
+    policy in ``src``."""
     from stable_baselines3 import PPO
 
     from mjendo.widen import widen_state, widened_normalizer

@@ -344,15 +344,16 @@ def test_same_seed_same_machine_trains_bit_identical_weights(short_run, tmp_path
     assert ea == eb
 
 
-@pytest.mark.parametrize("variant,size,mean_range,spread", [
-    ("randomized-scope", 22, (0.0, 160.0), 10.0),   # insertion depth first, in mm
-    ("short-horizon-timed", 16, (0.0, 1.0), 0.1),   # the share of the trial left
-    ("guided-free-pool-critic", 25, (0.0, 160.0), 10.0),  # critic-only insertion depth, tip pose, time, phase
+@pytest.mark.parametrize("variant,n,size,mean_range,spread,steps", [
+    ("randomized-scope", 15, 22, (0.0, 160.0), 10.0, 20),   # insertion depth first, in mm
+    ("short-horizon-timed", 15, 16, (0.0, 1.0), 0.1, 20),   # the share of the trial left
+    ("guided-free-pool-critic", 15, 25, (0.0, 160.0), 10.0, 20),  # critic-only insertion depth, tip pose, time, phase
+    ("paired", 11, 15, (0.0, 1.0), 0.5, 60),   # D's 11 inputs and E's contact indicator, which flips once it presses
 ])
-def test_a_fine_tune_that_adds_inputs_starts_acting_and_valuing_as_its_source(monkeypatch, variant, size, mean_range,
-                                                                               spread):
-    # Widening a 15-input policy: until training weighs the new inputs it must be the source, step for step in
-    # the real simulator (random new weights would make it a different policy).
+def test_a_fine_tune_that_adds_inputs_starts_acting_and_valuing_as_its_source(monkeypatch, variant, n, size,
+                                                                               mean_range, spread, steps):
+    # Widening a policy: until training weighs the new inputs it must be the source, step for step in the real
+    # simulator (random new weights would make it a different policy).
     import pickle
 
     import torch
@@ -370,13 +371,14 @@ def test_a_fine_tune_that_adds_inputs_starts_acting_and_valuing_as_its_source(mo
     with open(src_dir / "vecnormalize.pkl", "rb") as f:
         src_norm = pickle.load(f)
     norm = model.get_env()
-    assert model.observation_space.shape == (size,) and source.observation_space.shape == (15,)
-    first_mean, first_std = norm.obs_rms.mean[15], np.sqrt(norm.obs_rms.var[15])
+    assert model.observation_space.shape == (size,) and source.observation_space.shape == (n,)
+    first_mean, first_std = norm.obs_rms.mean[n], np.sqrt(norm.obs_rms.var[n])
     assert mean_range[0] < first_mean < mean_range[1] and first_std > spread / 10  # measured, not left at 0 / 1
+    norm.training = False  # compare with the source's statistics as saved, not as training would move them
     obs, seen = norm.reset(), []
-    for _ in range(20):
+    for _ in range(steps):
         raw = norm.get_original_obs()
-        own = np.clip((raw[:, :15] - src_norm.obs_rms.mean) / np.sqrt(src_norm.obs_rms.var + src_norm.epsilon),
+        own = np.clip((raw[:, :n] - src_norm.obs_rms.mean) / np.sqrt(src_norm.obs_rms.var + src_norm.epsilon),
                       -src_norm.clip_obs, src_norm.clip_obs).astype(np.float32)
         act, _ = model.predict(obs, deterministic=True)
         np.testing.assert_allclose(act, source.predict(own, deterministic=True)[0], atol=1e-4)
@@ -385,10 +387,10 @@ def test_a_fine_tune_that_adds_inputs_starts_acting_and_valuing_as_its_source(mo
             v_src = source.policy.predict_values(torch.as_tensor(own))
         np.testing.assert_allclose(v_new.numpy(), v_src.numpy(), rtol=1e-4, atol=1e-3)
         obs, *_ = norm.step(act)
-        seen.append(raw[:, 15])
+        seen.append(raw[:, n])
     assert np.ptp(seen) > spread  # the new inputs changed while the actions stayed the source's
     d = load_config("D", TRAINING_CONFIG, init_from="models/policies/E")
-    with pytest.raises(ConfigError, match="keeps the force observation"):
+    with pytest.raises(ConfigError, match="not drop or reorder them"):
         train_module._start_from(d, DummyVecEnv([train_module.make_env(d, 0)]))
 
 

@@ -84,8 +84,8 @@ def test_fine_tunes_of_one_policy_with_different_seeds_differ(short_run, tmp_pat
 
     src, _ = short_run
     cfg_path = src.parent.parent / "policies.yaml"
-    runs = {s: train("D", timesteps=256, seed=s, out=tmp_path, config_file=cfg_path, init_from=src, progress=False)
-            for s in (1, 2)}
+    runs = {s: train("D", timesteps=256, seed=s, out=tmp_path, config_file=cfg_path, init_from=src, fidelity="fast",
+                     progress=False) for s in (1, 2)}
     first = {s: (r / "episodes.csv").read_text().splitlines()[1:4] for s, r in runs.items()}
     assert first[1] != first[2]
     weights = {s: PPO.load(str(r / "model.zip"), device="cpu").policy.state_dict() for s, r in runs.items()}

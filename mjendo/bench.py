@@ -113,6 +113,7 @@ def episodes_figure(env: str, fidelity: str, steps: int, randomized: str, seed: 
 def training_figure(vec_env: str, steps: int, n_envs: int | None = None) -> dict:
     """PPO throughput for policy E's config, updates included, with a Dummy or Subproc VecEnv."""
     import torch
+    from stable_baselines3.common.logger import Logger
     from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecNormalize
 
     from mjendo.paths import TRAINING_CONFIG
@@ -126,6 +127,7 @@ def training_figure(vec_env: str, steps: int, n_envs: int | None = None) -> dict
     vec = SubprocVecEnv if vec_env == "subproc" else DummyVecEnv
     venv = VecNormalize(vec([make_env(cfg, i) for i in range(cfg.n_envs)]), gamma=cfg.ppo.gamma)
     model = build_ppo(cfg, venv)
+    model.set_logger(Logger(None, []))  # no output: SB3's default logger leaves an empty /tmp/SB3-* folder per call
     model.learn(2048)  # warm-up: process start, first rollout
     t0 = time.perf_counter()
     model.learn(steps, reset_num_timesteps=False)

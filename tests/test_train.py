@@ -224,12 +224,17 @@ def test_unwritable_run_folder(tmp_path):
 
 
 @pytest.mark.slow  # a PPO throughput figure: timing belongs to `make bench`, not the default suite
-def test_bench_training_figure_builds_the_shipped_ppo():
-    # The bench must time the same PPO that training builds (it once broke on a new config key).
+def test_bench_training_figure_builds_the_shipped_ppo(tmp_path, monkeypatch):
+    # The bench must time the same PPO that training builds (it once broke on a new config key), and leave no
+    # empty SB3 log folder in the temp directory per call.
+    import tempfile
+
     from mjendo.bench import training_figure
 
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
     r = training_figure("dummy", 2048, n_envs=2)
     assert r["n_envs"] == 2 and r["steps_per_s"] > 20
+    assert not list(tmp_path.glob("SB3-*"))
 
 
 def _cli(*args, cwd=None):

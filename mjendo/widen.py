@@ -38,10 +38,13 @@ def widen_state(source: dict, target: dict, n_source: int) -> dict:
     return out
 
 
-def widened_normalizer(norm_file: Path, venv, gamma: float, model, steps: int = STAT_STEPS):
+def widened_normalizer(norm_file: Path, venv, gamma: float, model, steps: int | None = None):
     """A VecNormalize over ``venv`` with the source's statistics for its inputs and the new inputs'
-    measured over ``steps`` steps of ``model`` (which acts as the source does)."""
+    measured over ``steps`` (default STAT_STEPS, read at call time) steps of ``model`` (which acts as the source
+    does)."""
     from stable_baselines3.common.vec_env import VecNormalize
+
+    steps = STAT_STEPS if steps is None else steps
 
     with open(norm_file, "rb") as f:
         src = pickle.load(f)  # VecNormalize.load would refuse the wider observation space

@@ -8,6 +8,11 @@ in the two kernels that size and fill those rows: it counts and writes every dof
 body to the world (``dof_parentid``), which for the stomach's node bodies (children of the world) is
 their own three dofs, as before. The kernels are rebuilt from the installed source with three exact
 text substitutions; if the installed source differs, :func:`apply` raises instead of guessing.
+
+Off CUDA graphs, Warp's implicit solve (``derivative.eff_solve``) runs all ``opt.iterations`` (1,000) PCG
+iterations every step even when every world converged after a few: on Warp's CPU device that was 95 % of a step.
+The same substitution mechanism stops the loop once no world is still solving (the skipped iterations leave
+``qacc`` untouched).
 """
 
 from __future__ import annotations
@@ -45,11 +50,20 @@ _JAC_SPARSE_FLEX = [(
     "      efc_Jqvel_out[worldid, efcid] = Jqvel\n",
 )]
 _PATCHES = {"_efc_contact_init_flex": _INIT_FLEX, "_efc_contact_jac_sparse_flex": _JAC_SPARSE_FLEX}
+_EFF_SOLVE = [(
+    "      for _ in range(max_it):\n"
+    "        _pcg_iteration()\n",
+    "      for _ in range(max_it):\n"
+    "        _pcg_iteration()\n"
+    "        if efm_nsolving.device.is_cpu and efm_nsolving.numpy()[0] == 0:\n"
+    "          break\n",
+)]
 SUFFIX = "_whole_chain"
 _APPLIED = False
+INSTALLED: dict = {}  # mujoco_warp's functions that apply() replaced, as installed (the tests compare with them)
 
 
-def _patched(module, name: str, subs: list[tuple[str, str]]):
+def _patched(module, name: str, subs: list[tuple[str, str]], suffix: str = SUFFIX):
     """The factory ``name`` of ``module`` rebuilt from its source with ``subs``, under a new name."""
     src = textwrap.dedent(inspect.getsource(getattr(module, name)))
     for old, new in subs:
@@ -58,12 +72,12 @@ def _patched(module, name: str, subs: list[tuple[str, str]]):
                               "(it was written for mujoco-warp==3.17.0): install that version with "
                               "`pip install 'mjendo[warp]'`")
         src = src.replace(old, new)
-    src = src.replace(f"def {name}(", f"def {name}{SUFFIX}(", 1)  # own name: mujoco_warp caches kernels by name
+    src = src.replace(f"def {name}(", f"def {name}{suffix}(", 1)  # own name: mujoco_warp caches kernels by name
     filename = f"<mjendo.warp_patch {name}>"
     linecache.cache[filename] = (len(src), None, src.splitlines(keepends=True), filename)  # Warp reads the source
     namespace = module.__dict__
     exec(compile(src, filename, "exec"), namespace)  # noqa: S102 - the installed source, substituted above
-    return namespace[name + SUFFIX]
+    return namespace[name + suffix]
 
 
 def apply() -> None:
@@ -71,9 +85,12 @@ def apply() -> None:
     global _APPLIED
     if _APPLIED:
         return
-    from mujoco_warp._src import constraint
+    from mujoco_warp._src import constraint, derivative
 
     patched = {name: _patched(constraint, name, subs) for name, subs in _PATCHES.items()}
+    eff_solve = _patched(derivative, "eff_solve", _EFF_SOLVE, suffix="_until_converged")
     for name, factory in patched.items():
         setattr(constraint, name, factory)
+    INSTALLED["eff_solve"] = derivative.eff_solve
+    derivative.eff_solve = eff_solve  # forward calls it as derivative.eff_solve
     _APPLIED = True

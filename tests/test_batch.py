@@ -127,6 +127,31 @@ def test_the_warp_patch_refuses_a_mujoco_warp_it_was_not_written_for(monkeypatch
     assert constraint._efc_contact_init_flex is before
 
 
+def test_the_implicit_solve_stops_once_every_world_converged_with_the_same_accelerations(monkeypatch):
+    # Off CUDA graphs MuJoCo Warp ran all opt.iterations (1,000) PCG iterations of its implicit solve per step;
+    # mjendo.warp_patch stops once no world is still solving. The skipped iterations must change nothing.
+    import warp as wp
+    from mujoco_warp._src import derivative
+
+    from mjendo import warp_patch
+
+    batch = BatchedNavigation(2, env="DE", device="cpu")
+    batch.reset()
+    batch._mjw.forward(batch.mw, batch.d)
+    as_installed = warp_patch.INSTALLED["eff_solve"]
+    precs, prec = [], derivative.eff_prec  # one preconditioner call per PCG iteration, and one to start
+    monkeypatch.setattr(derivative, "eff_prec", lambda *a, **k: (precs.append(1), prec(*a, **k))[1])
+    qacc, iterations = [], []
+    for solve in (derivative.eff_solve, as_installed):
+        precs.clear()
+        out = wp.zeros_like(batch.d.qacc_smooth)
+        solve(batch.mw, batch.d, out)
+        qacc.append(out.numpy())
+        iterations.append(len(precs) - 1)
+    assert iterations[1] == batch.mw.opt.iterations == 1000 and 0 < iterations[0] < 100, iterations
+    np.testing.assert_array_equal(qacc[0], qacc[1])
+
+
 def test_worlds_reset_themselves_with_their_own_seeds():
     # Seeds per world: the same batch seed gives the same draws; world i of two batches of different size too.
     a = BatchedNavigation(2, env="FE", device="cpu", seed=7)

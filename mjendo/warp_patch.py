@@ -49,7 +49,6 @@ _JAC_SPARSE_FLEX = [(
     "\n"
     "      efc_Jqvel_out[worldid, efcid] = Jqvel\n",
 )]
-_PATCHES = {"_efc_contact_init_flex": _INIT_FLEX, "_efc_contact_jac_sparse_flex": _JAC_SPARSE_FLEX}
 _EFF_SOLVE = [(
     "      for _ in range(max_it):\n"
     "        _pcg_iteration()\n",
@@ -58,12 +57,15 @@ _EFF_SOLVE = [(
     "        if efm_nsolving.device.is_cpu and efm_nsolving.numpy()[0] == 0:\n"
     "          break\n",
 )]
-SUFFIX = "_whole_chain"
+# (module of mujoco_warp._src, function, substitutions, suffix of the rebuilt function's own name)
+_PATCHES = [("constraint", "_efc_contact_init_flex", _INIT_FLEX, "_whole_chain"),
+            ("constraint", "_efc_contact_jac_sparse_flex", _JAC_SPARSE_FLEX, "_whole_chain"),
+            ("derivative", "eff_solve", _EFF_SOLVE, "_until_converged")]  # forward calls derivative.eff_solve
 _APPLIED = False
 INSTALLED: dict = {}  # mujoco_warp's functions that apply() replaced, as installed (the tests compare with them)
 
 
-def _patched(module, name: str, subs: list[tuple[str, str]], suffix: str = SUFFIX):
+def _patched(module, name: str, subs: list[tuple[str, str]], suffix: str):
     """The factory ``name`` of ``module`` rebuilt from its source with ``subs``, under a new name."""
     src = textwrap.dedent(inspect.getsource(getattr(module, name)))
     for old, new in subs:
@@ -85,12 +87,11 @@ def apply() -> None:
     global _APPLIED
     if _APPLIED:
         return
-    from mujoco_warp._src import constraint, derivative
+    import importlib
 
-    patched = {name: _patched(constraint, name, subs) for name, subs in _PATCHES.items()}
-    eff_solve = _patched(derivative, "eff_solve", _EFF_SOLVE, suffix="_until_converged")
-    for name, factory in patched.items():
-        setattr(constraint, name, factory)
-    INSTALLED["eff_solve"] = derivative.eff_solve
-    derivative.eff_solve = eff_solve  # forward calls it as derivative.eff_solve
+    modules = {m: importlib.import_module(f"mujoco_warp._src.{m}") for m, *_ in _PATCHES}
+    patched = [(modules[m], name, _patched(modules[m], name, subs, suffix)) for m, name, subs, suffix in _PATCHES]
+    for module, name, function in patched:  # only once all fit: a misfit leaves mujoco_warp as installed
+        INSTALLED[name] = getattr(module, name)
+        setattr(module, name, function)
     _APPLIED = True

@@ -38,13 +38,10 @@ def widen_state(source: dict, target: dict, n_source: int) -> dict:
     return out
 
 
-def widened_normalizer(norm_file: Path, venv, gamma: float, model, steps: int | None = None):
+def widened_normalizer(norm_file: Path, venv, gamma: float, model):
     """A VecNormalize over ``venv`` with the source's statistics for its inputs and the new inputs'
-    measured over ``steps`` (default STAT_STEPS, read at call time) steps of ``model`` (which acts as the source
-    does)."""
+    measured over STAT_STEPS steps of ``model`` (which acts as the source does)."""
     from stable_baselines3.common.vec_env import VecNormalize
-
-    steps = STAT_STEPS if steps is None else steps
 
     with open(norm_file, "rb") as f:
         src = pickle.load(f)  # VecNormalize.load would refuse the wider observation space
@@ -54,7 +51,7 @@ def widened_normalizer(norm_file: Path, venv, gamma: float, model, steps: int | 
     norm.ret_rms = src.ret_rms
     norm.training = False  # measure the new inputs without moving the source's statistics
     obs, raw = norm.reset(), []
-    for _ in range(max(1, steps // venv.num_envs)):
+    for _ in range(max(1, STAT_STEPS // venv.num_envs)):
         action, _ = model.predict(obs, deterministic=False)
         obs, *_ = norm.step(action)
         raw.append(norm.get_original_obs()[:, n:])

@@ -12,7 +12,11 @@ tests:
   stomach: end-on into the greater curvature, and the bent tip driven into
   a side wall by insertion (``PRESSES``);
 * **hold speed**: tip and wall-vertex speeds (mm/s) while a press is held:
-  a damped elastic system under constant load must come to rest.
+  a damped elastic system under constant load must come to rest;
+* **tip tracks**: the tip's path (mm, every control step) under the open-loop
+  motions that reach list A's contact-aided targets in the static stomach
+  (the reachability map's demonstrators): where the wall leaves the tube that
+  lies and slides on it, which held presses do not show.
 """
 
 from __future__ import annotations
@@ -321,6 +325,54 @@ def spikes(version: int, episodes: int = 20, seed: int = 0, env: str = "DE", pus
             "tip_speed_p99_mm_s": float(np.percentile(v, 99)), "tip_speed_max_mm_s": float(v.max())}
 
 
+def tip_tracks(fidelity: str, list_name: str = "A", solimp: tuple[float, ...] | None = None,
+               demos: list[int] | None = None) -> tuple[np.ndarray, dict[tuple[int, int], int | None]]:
+    """Each recorded SE demonstrator of the list's contact-aided points (or ``demos``) replayed open loop in
+    a stomach: the tip's path (demonstrator, step, xyz in mm) and, per (demonstrator, point), the step at
+    which it comes within the success distance (None: not within the trial). ``solimp``: a candidate
+    impedance of the scope-wall contact in place of the scene's."""
+    from mjendo import targets
+    from mjendo.config import PAPER_SUCCESS_MM
+    from mjendo.task import NavigationTask
+
+    pairs = targets.static_demos(list_name)
+    demos = sorted({d for d, _ in pairs}) if demos is None else demos
+    task = NavigationTask(env="SE", target_list=list_name, max_steps=10**6, randomize_phase=False,
+                          fidelity=fidelity)
+    if solimp is not None:
+        task.sim.model.flex_solimp[:, :len(solimp)] = solimp
+    tips = np.zeros((len(demos), targets.TRIAL_STEPS, 3))
+    arrivals: dict[tuple[int, int], int | None] = {}
+    for n, d in enumerate(demos):
+        task.reset(np.random.default_rng(0), None)
+        mine = [(i, int(np.flatnonzero(task.targets == i)[0])) for dd, i in pairs if dd == d]
+        for k in range(targets.TRIAL_STEPS):
+            task.step(targets.demo_action(targets.DEMOS[d], k))
+            tips[n, k] = to_mm(task.sim.tip_pos())
+            for i, row in mine:
+                if (d, i) not in arrivals or arrivals[d, i] is None:
+                    near = to_mm(np.linalg.norm(task.list_positions()[row] - task.sim.tip_pos())) < PAPER_SUCCESS_MM
+                    arrivals[d, i] = k + 1 if near else None
+        print(f"  {fidelity}: {n + 1}/{len(demos)} demonstrators replayed", flush=True)
+    return tips, arrivals
+
+
+def track_comparison(candidate: str, reference: str = "full", list_name: str = "A",
+                     solimp: tuple[float, ...] | None = None) -> dict:
+    """How far a stomach's tip paths lie from the reference's under the same motions (mm: mean, median and
+    90th percentile over every step, mean over the last half of the trial), and how many (demonstrator,
+    point) pairs arrive in each and arrive in one but not the other."""
+    a_tips, a = tip_tracks(candidate, list_name, solimp)
+    b_tips, b = tip_tracks(reference, list_name)
+    dev = np.linalg.norm(a_tips - b_tips, axis=2)
+    half = dev.shape[1] // 2
+    return {"pairs": len(a), "mean_mm": float(dev.mean()), "median_mm": float(np.median(dev)),
+            "p90_mm": float(np.percentile(dev, 90)), "late_mean_mm": float(dev[:, half:].mean()),
+            f"arrive_{candidate}": sum(s is not None for s in a.values()),
+            f"arrive_{reference}": sum(s is not None for s in b.values()),
+            "arrive_in_one_only": sum((a[k] is None) != (b[k] is None) for k in a)}
+
+
 def realised_modulus(dof: str, young: float = 150e3, poisson: float = 0.3, size_mm: float = 50.0,
                      n: int = 5) -> tuple[float, float]:
     """Young's modulus and Poisson ratio a 3D flex of ``dof`` realises for MuJoCo's ``young`` and ``poisson``.
@@ -401,9 +453,19 @@ def main(argv: list[str] | None = None) -> int:
     sp.add_argument("--young-scales", type=float, nargs="+",
                     help="also with the wall's modulus fixed at each of these factors (the randomization's ends)")
     sub.add_parser("modulus", help="the Young's modulus and Poisson ratio MuJoCo's 3D flexes realise (a cube)")
+    tr = sub.add_parser("tracks", help="a fast stomach's tip paths against the full one's under the same motions "
+                        "(about 12 min on one core, 11 of them the full stomach)")
+    tr.add_argument("--fidelity", choices=[f for f in FIDELITIES if f != "full"], default="fast-compliant")
+    tr.add_argument("--list", default="A", choices=("A", "B"))
+    tr.add_argument("--solimp", type=float, nargs=3, metavar=("DMIN", "DMAX", "WIDTH_M"),
+                    help="a candidate impedance of the scope-wall contact in place of the scene's")
     lm = sub.add_parser("motion", help="how far the listed targets move between the two load states")
     lm.add_argument("--envs", nargs="+", default=["DE", "UE1", "UE2"])
     args = ap.parse_args(argv)
+    if args.cmd == "tracks":
+        out = track_comparison(args.fidelity, "full", args.list, tuple(args.solimp) if args.solimp else None)
+        print(", ".join(f"{k} {x:.3g}" if isinstance(x, float) else f"{k} {x}" for k, x in out.items()))
+        return 0
     if args.cmd == "motion":
         for env in args.envs:
             print(", ".join(f"{k} {x:.3g}" if isinstance(x, float) else f"{k} {x}"

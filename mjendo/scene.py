@@ -125,7 +125,7 @@ def _flexcomp(cfg: SceneConfig, st: anatomy.Stomach, msh: Path) -> str:
     <elasticity young="{cfg.young_pa():g}" poisson="{mat.poisson:g}" damping="{mat.damping:g}"/>
     <contact margin="{from_mm(con.margin_mm):g}" gap="{from_mm(con.gap_mm):g}"
              friction="{con.friction:g} 0.005 0.0001" contype="2" conaffinity="1" selfcollide="none"
-             solimp="{' '.join(f'{x:g}' for x in con.solimp)}" condim="3"/>
+             solimp="{' '.join(f'{x:g}' for x in (fid.contact_solimp or con.solimp))}" condim="3"/>
   </flexcomp>
 </worldbody></mujoco>"""
 
@@ -317,7 +317,7 @@ def write_all(directory: Path = SCENES_DIR) -> list[Path]:
     """Every committed scene: each task version's FE and stomach scenes at each fidelity."""
     written = []
     for version in VERSIONS:
-        for env, fid in [("FE", "fast")] + [("SE", f) for f in FIDELITIES]:
+        for env, fid in [("FE", "fast")] + [("SE", f) for f in FIDELITIES if FIDELITIES[f].first_version <= version]:
             path = directory / scene_path(env, fid, version).relative_to(SCENES_DIR)
             path.parent.mkdir(parents=True, exist_ok=True)
             path.write_text(scene_xml(env, fid, version=version))

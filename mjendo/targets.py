@@ -414,6 +414,13 @@ def _starts(fidelity: str, list_name: str, phases: int = PHASES, env: str = "DE"
         yield task, start, name if phase is None else f"{name} phase {phase}/{phases}"
 
 
+def static_demos(list_name: str, path: Path = TARGETS_FILE) -> list[tuple[int, int]]:
+    """(demonstrator, point) for each of the list's contact-aided points: the demonstrator (an index into
+    DEMOS) the map recorded reaching it in the static stomach, SE."""
+    points, listed = _listed_aided(list_name, path)
+    return [(points[i]["demos"][0], i) for i in listed]
+
+
 def recorded_demos(list_name: str, path: Path = TARGETS_FILE) -> list[int]:
     """The demonstrators the map recorded for the list's contact-aided points (any start): the ones worth
     racing from start phases the map did not try."""

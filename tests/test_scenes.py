@@ -29,15 +29,15 @@ def test_scene_runs_one_second_of_random_control(env, fidelity):
         assert np.isfinite(sim.vertices()).all()
 
 
-@pytest.mark.parametrize("env,fidelity", [("FE", "fast"), ("SE", "fast"), ("DE", "full")])
+@pytest.mark.parametrize("env,fidelity", [("FE", "fast"), ("SE", "fast"), ("SE", "fast-compliant"), ("DE", "full")])
 def test_committed_scene_is_current(env, fidelity):
     assert scene.scene_path(env, fidelity).read_text() == scene.scene_xml(env, fidelity)
 
 
 def test_one_scene_per_fidelity_plus_fe():
     # SE, DE, UE1 and UE2 share their fidelity's scene; only the load amplitude differs, set by the Simulator.
-    assert sorted(p.name for p in scene.SCENES_DIR.glob("*.xml")) == ["FE.xml", "stomach_fast.xml",
-                                                                      "stomach_full.xml"]
+    assert sorted(p.name for p in scene.SCENES_DIR.glob("*.xml")) == [
+        "FE.xml", "stomach_fast-compliant.xml", "stomach_fast.xml", "stomach_full.xml"]
     paths = {scene.scene_path(e, "fast") for e in ("SE", "DE", "UE1", "UE2")}
     assert paths == {scene.SCENES_DIR / "stomach_fast.xml"}
     amplitudes = {e: Simulator(e, "fast").f0 for e in ("SE", "DE", "UE1", "UE2")}
@@ -62,8 +62,11 @@ def test_dm_control_physics_builds_from_scene():
 def test_unknown_names_list_valid_ones():
     with pytest.raises(ConfigError, match="valid: FE, SE, DE, UE1, UE2"):
         scene_config("XE")
-    with pytest.raises(ConfigError, match="valid: fast, full"):
+    with pytest.raises(ConfigError, match="valid: fast, fast-compliant, full"):
         Simulator("DE", "medium")
+    # The compliant fast stomach was calibrated for version 1's scope: version 0 has no scene of it.
+    with pytest.raises(ConfigError, match="'fast-compliant' stomach exists from task version 1.*'fast' or 'full'"):
+        Simulator("DE", "fast-compliant", version=0)
 
 
 def test_unusable_physics_parameters_are_rejected_with_the_fix():

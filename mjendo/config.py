@@ -233,6 +233,7 @@ class Fidelity:
     # (`python -m mjendo.fidelity tracks`, docs/physics.md "Where the wall leaves the tube").
     contact_solimp: tuple[float, float, float] | None = None
     first_version: int = 0  # the first task version with this stomach (older versions' scenes predate it)
+    description: str = ""  # what reports call this stomach
 
 
 LOAD_LEVELS = (1.0, 2.0, 3.0)  # x f0: the paper's DE, UE1, UE2
@@ -250,14 +251,15 @@ FIDELITIES: dict[str, Fidelity] = {
     # `python -m mjendo.fidelity` (docs/physics.md "Calibration"): press forces
     # within 1.25x (0.5 mm contact), target motion within 25 %.
     "fast": Fidelity("fast", "trilinear", (2, 2, 2), young_scale=0.05, load_gains=(4.1, 5.7, 6.3),
-                     solver="Newton"),
+                     solver="Newton", description="the fast (reduced-order, calibrated) stomach"),
     # The fast stomach with the contact impedance that puts its tip where the FEM stomach's goes under the
     # same motions: tip paths 1.3 mm from the full stomach's on average against 2.3 (docs/physics.md).
     "fast-compliant": Fidelity("fast-compliant", "trilinear", (2, 2, 2), young_scale=0.05,
                                load_gains=(4.1, 5.7, 6.3), solver="Newton", contact_solimp=(0.3, 0.99, 0.005),
-                               first_version=1),
+                               first_version=1, description="the fast stomach with the contact calibrated to the "
+                               "full stomach's tip paths"),
     # Every mesh vertex is a 3-dof body: the per-vertex FEM stomach.
-    "full": Fidelity("full", "full", (1, 1, 1)),
+    "full": Fidelity("full", "full", (1, 1, 1), description="the full per-vertex FEM stomach"),
 }
 
 

@@ -338,11 +338,10 @@ def write_report(rows: list[dict], out: Path, command: str, wall_s: float, n: in
                  made: list | None = None, classes: list[dict] | None = None, anatomy=None,
                  steps: int = PAPER_EVAL_STEPS, randomization=None) -> Path:
     """report.md: ours next to the paper's tables, then every figure embedded with its caption."""
-    stomach = {"fast": "the fast (reduced-order, calibrated) stomach", "full": "the full per-vertex FEM stomach"}
     lines = [
         "# mjendo evaluation vs the paper",
         "",
-        f"Stomach: {stomach[fidelity]} (`fidelity={fidelity}`)"
+        f"Stomach: {FIDELITIES[fidelity].description} (`fidelity={fidelity}`)"
         + ("" if anatomy is None else f", anatomy `{anatomy}` (trials spread evenly over its stomachs)")
         + ("" if randomization is None else f", randomized per trial (`{json.dumps(randomization)}`)") + ".  ",
         f"Command: `{command}`  ",

@@ -73,8 +73,9 @@ def test_default_output_is_untracked_and_a_bigger_study_is_not_overwritten(tmp_p
 
 def test_report_embeds_every_figure_with_a_caption(tmp_path, monkeypatch):
     monkeypatch.setenv("MJENDO_POLICIES", str(tmp_path / "none"))
-    evaluate(trials=1, controllers=("baseline",), workers=1, out=tmp_path, envs=("DE",))
+    evaluate(trials=1, controllers=("baseline",), workers=1, out=tmp_path, envs=("DE",), fidelity="fast-compliant")
     report = (tmp_path / "report.md").read_text()
+    assert "Stomach: the fast stomach with the contact calibrated to the full stomach's tip paths" in report
     embedded = [line for line in report.splitlines() if line.startswith("![")]
     assert embedded and all((tmp_path / line.split("(")[-1].rstrip(")")).exists() for line in embedded)
     assert "success_rates.png" in report and "95 % Wilson intervals" in report

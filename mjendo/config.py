@@ -414,8 +414,9 @@ def fidelity_preset(fidelity: str | Fidelity, version: int | None = None) -> Fid
     fid = _pick(FIDELITIES, fidelity, "fidelity")
     version = CURRENT_VERSION if version is None else version
     if version < fid.first_version:
+        older = " or ".join(repr(f) for f, x in FIDELITIES.items() if x.first_version <= version)
         raise ConfigError(f"the {fid.name!r} stomach exists from task version {fid.first_version}; "
-                          f"version {version} runs in 'fast' or 'full'")
+                          f"version {version} runs in {older}")
     if fid.dof == "trilinear":
         ver = task_version(version)
         fid = replace(fid, timestep_s=ver.fast_timestep_s, load_gains=ver.fast_load_gains,

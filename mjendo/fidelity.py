@@ -350,7 +350,7 @@ def tip_tracks(fidelity: str, list_name: str = "A", solimp: tuple[float, ...] | 
             task.step(targets.demo_action(targets.DEMOS[d], k))
             tips[n, k] = to_mm(task.sim.tip_pos())
             for i, row in mine:
-                if (d, i) not in arrivals or arrivals[d, i] is None:
+                if arrivals.get((d, i)) is None:
                     near = to_mm(np.linalg.norm(task.list_positions()[row] - task.sim.tip_pos())) < PAPER_SUCCESS_MM
                     arrivals[d, i] = k + 1 if near else None
         print(f"  {fidelity}: {n + 1}/{len(demos)} demonstrators replayed", flush=True)
@@ -429,6 +429,11 @@ def list_motion(env: str, version: int | None = None) -> dict:
             "p90_mm": float(np.percentile(shift, 90))}
 
 
+def _line(figures: dict, digits: int = 3) -> str:
+    """One printed line of named figures."""
+    return ", ".join(f"{k} {x:.{digits}g}" if isinstance(x, float) else f"{k} {x}" for k, x in figures.items())
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m mjendo.fidelity", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -463,13 +468,11 @@ def main(argv: list[str] | None = None) -> int:
     lm.add_argument("--envs", nargs="+", default=["DE", "UE1", "UE2"])
     args = ap.parse_args(argv)
     if args.cmd == "tracks":
-        out = track_comparison(args.fidelity, "full", args.list, tuple(args.solimp) if args.solimp else None)
-        print(", ".join(f"{k} {x:.3g}" if isinstance(x, float) else f"{k} {x}" for k, x in out.items()))
+        print(_line(track_comparison(args.fidelity, "full", args.list, tuple(args.solimp) if args.solimp else None)))
         return 0
     if args.cmd == "motion":
         for env in args.envs:
-            print(", ".join(f"{k} {x:.3g}" if isinstance(x, float) else f"{k} {x}"
-                            for k, x in list_motion(env).items()), flush=True)
+            print(_line(list_motion(env)), flush=True)
         return 0
     if args.cmd == "modulus":
         for poisson in (0.0, 0.3, 0.45):
@@ -484,8 +487,7 @@ def main(argv: list[str] | None = None) -> int:
                                                  randomization={"young_scale": (k, k)})}
                      for k in args.young_scales or []]
             for row in rows:
-                print(", ".join(f"{k} {x:.4g}" if isinstance(x, float) else f"{k} {x}" for k, x in row.items()),
-                      flush=True)
+                print(_line(row, digits=4), flush=True)
         return 0
     if args.cmd == "refine":
         refinement_study(args.levels)

@@ -546,6 +546,9 @@ class TaskConfig:
     # Weight of the paper's distance term (-distance_weight * mm per step); the paper's is 1. Below 1 the
     # success bonus outweighs the path's distances: a training choice (variants), success is measured alike.
     distance_weight: float = 1.0
+    # Distance (mm) at which a training episode succeeds; the paper's is 3. Below it the policy must place the tip
+    # more finely than the trial asks (a margin), a training choice (variants): every trial succeeds at 3 mm.
+    success_mm: float = PAPER_SUCCESS_MM
     randomize_phase: bool = True  # start each episode at a random phase of the load
     # Per-episode tissue, load and friction and sensor noise (Randomization); None: the built-in stomach.
     # task_config also takes True (the default ranges) or a dict of Randomization fields.
@@ -598,6 +601,7 @@ def task_config(**kw) -> TaskConfig:
         _finite(name, getattr(cfg, name), 0.0, strict=True)
     _finite("force_penalty", cfg.force_penalty, 0.0, strict=False)
     _finite("distance_weight", cfg.distance_weight, 0.0, strict=False)
+    _finite("success_mm", cfg.success_mm, 0.0, strict=True)
     cfg = replace(cfg, randomization=_randomization(cfg.randomization))
     if cfg.anatomy is not None:
         _anatomy(cfg)

@@ -87,6 +87,7 @@ class EndoscopeEnv(gym.Env):
     | ``max_steps`` | 128 | truncation limit |
     | ``force_penalty`` | 0.0 | weight of the optional force penalty per newton |
     | ``distance_weight`` | 1.0 | weight of the distance term (the paper's: 1; not the paper's below it: train/policies.yaml variants) |
+    | ``success_mm`` | 3.0 | distance at which an episode succeeds (the paper's: 3; a training margin below it: train/policies.yaml variants; trials always use 3) |
     | ``randomize_phase`` | True | start each episode at a random phase of the periodic load (False: phase 0) |
     | ``anatomy`` | None | the stomach: None built-in; a seed (generated, ``anatomy.generate``); "train" or "test" (``config.ANATOMY_SETS``, one drawn per episode; ``reset(options={"anatomy_index": k})`` picks one); a folder you built |
     | ``randomization`` | None | per-episode tissue stiffness and damping, load amplitude, period and direction, friction and sensor noise: True for the ranges of ``config.Randomization`` (sourced there), or a dict of its fields |

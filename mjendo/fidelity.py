@@ -16,7 +16,10 @@ tests:
 * **tip tracks**: the tip's path (mm, every control step) under the open-loop
   motions that reach list A's contact-aided targets in the static stomach
   (the reachability map's demonstrators): where the wall leaves the tube that
-  lies and slides on it, which held presses do not show.
+  lies and slides on it, which held presses do not show;
+* **policy tracks**: a policy's closed-loop trials in the full stomach, its
+  actions replayed in a fast one: tip, target and force apart under the
+  policy's own motions (``python -m mjendo.fidelity policy-tracks``).
 """
 
 from __future__ import annotations
@@ -373,6 +376,90 @@ def track_comparison(candidate: str, reference: str = "full", list_name: str = "
             "arrive_in_one_only": sum((a[k] is None) != (b[k] is None) for k in a)}
 
 
+def policy_rollouts(controller: str, env_name: str, fidelity: str, trials: int, actions: np.ndarray | None = None,
+                    solimp: tuple[float, ...] | None = None, randomization=None) -> dict[str, np.ndarray]:
+    """A policy's first ``trials`` evaluation trials (the evaluation's seeds and targets) in a stomach, closed
+    loop, or ``actions`` (trials, steps, 5; NaN after a trial's end) replayed there open loop: per trial and
+    step the action, the tip and the target (mm) and the contact force (N); ``steps`` holds each trial's
+    length. ``solimp`` and ``randomization`` (TaskConfig.randomization) alter the stomach. Replaying one
+    stomach's closed-loop actions in another says where the two part under the policy's own motions, which
+    the demonstrators' tracks do not cover."""
+    from mjendo.config import PAPER_EVAL_STEPS
+    from mjendo.envs import EndoscopeEnv
+    from mjendo.evaluation import EVAL_SEED_BASE, trial_targets
+    from mjendo.policies import load_controller, obs_options_of, version_of
+
+    env = EndoscopeEnv(env_name, **obs_options_of(controller), max_steps=PAPER_EVAL_STEPS, fidelity=fidelity,
+                       version=version_of(controller), randomization=randomization)
+    if solimp is not None:
+        env.task.sim.model.flex_solimp[:, :len(solimp)] = solimp
+    ctrl = load_controller(controller, env.task) if actions is None else None
+    n, k_max = trials, PAPER_EVAL_STEPS
+    out = {"action": np.full((n, k_max, 5), np.nan), "tip": np.full((n, k_max, 3), np.nan),
+           "target": np.full((n, k_max, 3), np.nan), "force": np.full((n, k_max), np.nan),
+           "steps": np.zeros(n, int)}
+    for i, (_, target) in enumerate(trial_targets(env, n)):
+        obs, _ = env.reset(seed=EVAL_SEED_BASE + i, options={"target_index": target})
+        if ctrl is not None:
+            ctrl.reset(env.task)
+        for k in range(k_max):
+            a = ctrl.act(obs, env.task) if ctrl is not None else actions[i, k]
+            if np.isnan(a).any():
+                break
+            r = env.task.step(a)
+            obs = r.obs
+            out["action"][i, k] = a
+            out["tip"][i, k] = to_mm(env.task.sim.tip_pos())
+            out["target"][i, k] = to_mm(env.task.target_pos())
+            out["force"][i, k] = float(np.linalg.norm(r.info["force_N"]))
+            out["steps"][i] = k + 1
+            if ctrl is not None and (r.terminated or r.truncated):
+                break
+        print(f"  {fidelity}: {i + 1}/{n} trials", flush=True)
+    return out
+
+
+def policy_track_comparison(controller: str, env_name: str, candidate: str, reference: str = "full",
+                            trials: int = 65, cache: Path | None = None,
+                            solimp: tuple[float, ...] | None = None) -> dict:
+    """A policy's closed-loop trials in the reference stomach, their actions replayed in the candidate: how far
+    the tips (and the targets) lie apart (mm, over every step), how the contact force differs, and how many
+    trials end within the success distance in each. ``cache``: an .npz holding the reference's rollouts, read
+    if it exists and written if not (the full stomach's take about 12 s a trial)."""
+    if cache is not None and Path(cache).exists():
+        ref = dict(np.load(cache))
+    else:
+        ref = policy_rollouts(controller, env_name, reference, trials)
+        if cache is not None:
+            Path(cache).parent.mkdir(parents=True, exist_ok=True)
+            np.savez_compressed(cache, **ref)
+    n = min(trials, len(ref["steps"]))
+    ref = {k: v[:n] for k, v in ref.items()}
+    cand = policy_rollouts(controller, env_name, candidate, n, actions=ref["action"], solimp=solimp)
+    return rollout_figures(ref, cand, reference, candidate)
+
+
+def rollout_figures(ref: dict[str, np.ndarray], cand: dict[str, np.ndarray], reference: str = "full",
+                    candidate: str = "candidate") -> dict:
+    """Figures of one stomach's rollouts against another's under the same actions (policy_track_comparison)."""
+    from mjendo.config import PAPER_SUCCESS_MM
+
+    live = ~np.isnan(ref["force"])
+    tip = np.linalg.norm(cand["tip"] - ref["tip"], axis=2)[live]
+    tgt = np.linalg.norm(cand["target"] - ref["target"], axis=2)[live]
+    within = {name: np.nanmin(np.linalg.norm(r["tip"] - r["target"], axis=2), axis=1) < PAPER_SUCCESS_MM
+              for name, r in (("ref", ref), ("cand", cand))}
+    fr, fc = ref["force"][live], cand["force"][live]
+    return {"trials": len(live), "steps": int(live.sum()), "tip_mean_mm": float(tip.mean()),
+            "tip_median_mm": float(np.median(tip)), "tip_p90_mm": float(np.percentile(tip, 90)),
+            "target_mean_mm": float(tgt.mean()), "target_p90_mm": float(np.percentile(tgt, 90)),
+            f"force_mean_n_{reference}": float(fr.mean()), f"force_mean_n_{candidate}": float(fc.mean()),
+            "force_abs_diff_mean_n": float(np.abs(fc - fr).mean()),
+            f"contact_share_{reference}": float((fr > 0).mean()), f"contact_share_{candidate}": float((fc > 0).mean()),
+            f"arrive_{reference}": int(within["ref"].sum()), f"arrive_{candidate}": int(within["cand"].sum()),
+            "arrive_in_one_only": int((within["ref"] != within["cand"]).sum())}
+
+
 def realised_modulus(dof: str, young: float = 150e3, poisson: float = 0.3, size_mm: float = 50.0,
                      n: int = 5) -> tuple[float, float]:
     """Young's modulus and Poisson ratio a 3D flex of ``dof`` realises for MuJoCo's ``young`` and ``poisson``.
@@ -464,11 +551,24 @@ def main(argv: list[str] | None = None) -> int:
     tr.add_argument("--list", default="A", choices=("A", "B"))
     tr.add_argument("--solimp", type=float, nargs=3, metavar=("DMIN", "DMAX", "WIDTH_M"),
                     help="a candidate impedance of the scope-wall contact in place of the scene's")
+    pt = sub.add_parser("policy-tracks", help="a policy's closed-loop trials in the full stomach replayed in a "
+                        "fast one: tip, target and force apart under the policy's own motions")
+    pt.add_argument("--policy", required=True, help="a policy spec, e.g. models/policies/variants/E-paired")
+    pt.add_argument("--env", default="SE", choices=("SE", "DE", "UE1", "UE2"))
+    pt.add_argument("--fidelity", choices=[f for f in FIDELITIES if f != "full"], default="fast")
+    pt.add_argument("--trials", type=int, default=65)
+    pt.add_argument("--cache", type=Path, help="an .npz of the full stomach's rollouts: read if present, else written")
+    pt.add_argument("--solimp", type=float, nargs=3, metavar=("DMIN", "DMAX", "WIDTH_M"),
+                    help="a candidate impedance of the scope-wall contact in place of the scene's")
     lm = sub.add_parser("motion", help="how far the listed targets move between the two load states")
     lm.add_argument("--envs", nargs="+", default=["DE", "UE1", "UE2"])
     args = ap.parse_args(argv)
     if args.cmd == "tracks":
         print(_line(track_comparison(args.fidelity, "full", args.list, tuple(args.solimp) if args.solimp else None)))
+        return 0
+    if args.cmd == "policy-tracks":
+        print(_line(policy_track_comparison(args.policy, args.env, args.fidelity, "full", args.trials, args.cache,
+                                            tuple(args.solimp) if args.solimp else None)))
         return 0
     if args.cmd == "motion":
         for env in args.envs:

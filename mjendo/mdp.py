@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 
-from mjendo.config import PAPER_BONUS, PAPER_EXIT_X_MM, PAPER_SUCCESS_MM, TaskConfig
+from mjendo.config import PAPER_BONUS, PAPER_EXIT_X_MM, TaskConfig
 from mjendo.units import MM_PER_M
 
 REWARD_TERMS = ("reward_distance", "reward_success", "reward_exit", "reward_force")
@@ -28,7 +28,7 @@ def outcome(cfg: TaskConfig, tip, target, origin, axis, force, steps, ok) -> dic
     """
     delta = target - tip
     dist = _norm(delta) * MM_PER_M
-    success = (dist < PAPER_SUCCESS_MM) & ok
+    success = (dist < cfg.success_mm) & ok
     exited = (((tip - origin) * axis).sum(-1) * MM_PER_M < PAPER_EXIT_X_MM) & ok
     force_n = _norm(force)
     live = ok * 1.0

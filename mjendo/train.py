@@ -27,7 +27,7 @@ import yaml
 
 from mjendo import anatomy, artifacts, cli, paths, targets
 from mjendo.artifacts import MODEL_FILE, NORM_FILE, PolicyError, model_home
-from mjendo.config import FIDELITIES, PAPER_EVAL_STEPS, ConfigError, default_target_list
+from mjendo.config import FIDELITIES, PAPER_EVAL_STEPS, PAPER_SUCCESS_MM, ConfigError, default_target_list
 from mjendo.sampling import TargetSampler
 from mjendo.task import OBS_OPTIONS, obs_options
 from mjendo.train_config import TrainConfig, from_dict
@@ -82,14 +82,19 @@ class _Appender:
         self.f.flush()
 
 
+def trial_env_kwargs(cfg: TrainConfig) -> dict:
+    """The periodic evaluation's task: the run's, as a trial (80 steps, success at the paper's distance
+    whatever margin training asks)."""
+    return {**asdict(cfg.task_config()), "max_steps": PAPER_EVAL_STEPS, "success_mm": PAPER_SUCCESS_MM}
+
+
 def periodic_evaluation(model, venv, cfg: TrainConfig, meta: dict) -> tuple[float, float, float]:
     """Deterministic 80-step trials of the current policy: success rate, mean final error (mm), mean return."""
     from mjendo.envs import EndoscopeEnv
     from mjendo.policies import PPOController
     from mjendo.rollout import run
 
-    task = cfg.task_config()
-    env = EndoscopeEnv(**{**asdict(task), "max_steps": PAPER_EVAL_STEPS})
+    env = EndoscopeEnv(**trial_env_kwargs(cfg))
     ctrl = PPOController.from_training(model, venv, meta)
     results = [run(env, ctrl, seed=TRAINING_EVAL_SEED + cfg.seed * 1000 + i) for i in range(cfg.eval_episodes)]
     env.close()

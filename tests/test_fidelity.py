@@ -152,3 +152,17 @@ def test_the_compliant_fast_stomach_puts_the_tip_where_the_fem_wall_does():
     assert a.nv == b.nv and np.array_equal(a.flex_stiffness, b.flex_stiffness)
     assert np.array_equal(a.geom_friction, b.geom_friction) and a.opt.timestep == b.opt.timestep
     assert b.flex_solimp[0, 0] < a.flex_solimp[0, 0]
+
+
+def test_a_policys_actions_replayed_open_loop_retrace_its_trial():
+    # policy-tracks compares stomachs under a policy's own motions by replaying its closed-loop actions; that
+    # rests on a replay retracing the trial it came from, and on the figures seeing a changed stomach.
+    spec = "models/policies/variants/E-paired"
+    closed = fidelity.policy_rollouts(spec, "SE", "fast", 1)
+    k = closed["steps"][0]
+    assert 0 < k < 80 and np.linalg.norm(closed["tip"][0, k - 1] - closed["target"][0, k - 1]) < 3.0  # trial 0 arrives
+    same = fidelity.rollout_figures(closed, fidelity.policy_rollouts(spec, "SE", "fast", 1, actions=closed["action"]))
+    assert same["tip_mean_mm"] == 0.0 and same["force_abs_diff_mean_n"] == 0.0 and same["arrive_in_one_only"] == 0
+    softer = fidelity.policy_rollouts(spec, "SE", "fast", 1, actions=closed["action"], solimp=(0.1, 0.99, 0.01))
+    moved = fidelity.rollout_figures(closed, softer)
+    assert moved["steps"] == k and moved["tip_mean_mm"] > 0.0

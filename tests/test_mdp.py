@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from mjendo import mdp
-from mjendo.config import task_config
+from mjendo.config import ConfigError, task_config
 from mjendo.task import NavigationTask, obs_bounds
 
 
@@ -69,6 +69,25 @@ def test_the_paper_rewards_and_an_unstable_step():
     far = mdp.outcome(cfg, np.array([[0, 0, 0.01]]), np.array([[0, 0, -0.05]]), origin, axis, np.zeros((1, 3)),
                       np.array([1]), np.array([True]))
     assert far["exited"][0] and far["reward"][0] == pytest.approx(-1e4 - 60.0)
+
+
+def test_a_training_margin_moves_success_and_the_trial_keeps_the_papers_distance():
+    """success_mm is training's: 2.5 mm succeeds at the paper's 3 mm and not at a 2 mm margin, and the
+    periodic evaluation of a run trained with the margin still scores its trials at 3 mm."""
+    from mjendo.paths import TRAINING_CONFIG
+    from mjendo.train import trial_env_kwargs
+    from mjendo.train_config import load
+
+    tip, origin, axis = np.zeros((1, 3)), np.array([0.0, 0.0, 0.02]), np.array([0.0, 0.0, -1.0])
+    args = (tip, tip + np.array([[0.0025, 0, 0]]), origin, axis, np.zeros((1, 3)), np.array([5]), np.array([True]))
+    assert mdp.outcome(task_config(env="DE"), *args)["is_success"][0]
+    tight = mdp.outcome(task_config(env="DE", success_mm=2.0), *args)
+    assert not tight["is_success"][0] and not tight["terminated"][0] and tight["reward"][0] == pytest.approx(-2.5)
+    with pytest.raises(ConfigError, match="success_mm"):
+        task_config(env="DE", success_mm=0)
+    cfg = load("E", TRAINING_CONFIG, variant="paired-precise")
+    assert cfg.task_config().success_mm == 2.0
+    assert trial_env_kwargs(cfg)["success_mm"] == 3.0 and trial_env_kwargs(cfg)["max_steps"] == 80
 
 
 def test_the_cpu_task_step_is_the_mdp_of_its_state():

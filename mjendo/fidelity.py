@@ -35,7 +35,17 @@ import mujoco
 import numpy as np
 
 from mjendo import anatomy, scene
-from mjendo.config import FIDELITIES, VERSIONS, Fidelity, StomachShape, fidelity_preset, scene_config
+from mjendo.config import (
+    FIDELITIES,
+    PAPER_EVAL_STEPS,
+    PAPER_SUCCESS_MM,
+    VERSIONS,
+    ConfigError,
+    Fidelity,
+    StomachShape,
+    fidelity_preset,
+    scene_config,
+)
 from mjendo.scene import SOLVERS
 from mjendo.sim import Simulator
 from mjendo.units import from_mm, to_mm
@@ -335,7 +345,6 @@ def tip_tracks(fidelity: str, list_name: str = "A", solimp: tuple[float, ...] | 
     which it comes within the success distance (None: not within the trial). ``solimp``: a candidate
     impedance of the scope-wall contact in place of the scene's."""
     from mjendo import targets
-    from mjendo.config import PAPER_SUCCESS_MM
     from mjendo.task import NavigationTask
 
     pairs = targets.static_demos(list_name)
@@ -384,7 +393,6 @@ def policy_rollouts(controller: str, env_name: str, fidelity: str, trials: int, 
     length. ``solimp`` and ``randomization`` (TaskConfig.randomization) alter the stomach. Replaying one
     stomach's closed-loop actions in another says where the two part under the policy's own motions, which
     the demonstrators' tracks do not cover."""
-    from mjendo.config import PAPER_EVAL_STEPS
     from mjendo.envs import EndoscopeEnv
     from mjendo.evaluation import EVAL_SEED_BASE, trial_targets
     from mjendo.policies import load_controller, obs_options_of, version_of
@@ -426,13 +434,16 @@ def policy_track_comparison(controller: str, env_name: str, candidate: str, refe
     the tips (and the targets) lie apart (mm, over every step), how the contact force differs, and how many
     trials end within the success distance in each. ``cache``: an .npz holding the reference's rollouts, read
     if it exists and written if not (the full stomach's take about 12 s a trial)."""
+    made_by = f"{controller} in {env_name}, {reference} stomach"
     if cache is not None and Path(cache).exists():
         ref = dict(np.load(cache))
+        if str(ref.pop("made_by", "")) != made_by:
+            raise ConfigError(f"{cache} does not hold the trials of {made_by}: delete it or name another --cache")
     else:
         ref = policy_rollouts(controller, env_name, reference, trials)
         if cache is not None:
             Path(cache).parent.mkdir(parents=True, exist_ok=True)
-            np.savez_compressed(cache, **ref)
+            np.savez_compressed(cache, **ref, made_by=np.array(made_by))
     n = min(trials, len(ref["steps"]))
     ref = {k: v[:n] for k, v in ref.items()}
     cand = policy_rollouts(controller, env_name, candidate, n, actions=ref["action"], solimp=solimp)
@@ -442,8 +453,6 @@ def policy_track_comparison(controller: str, env_name: str, candidate: str, refe
 def rollout_figures(ref: dict[str, np.ndarray], cand: dict[str, np.ndarray], reference: str = "full",
                     candidate: str = "candidate") -> dict:
     """Figures of one stomach's rollouts against another's under the same actions (policy_track_comparison)."""
-    from mjendo.config import PAPER_SUCCESS_MM
-
     live = ~np.isnan(ref["force"])
     tip = np.linalg.norm(cand["tip"] - ref["tip"], axis=2)[live]
     tgt = np.linalg.norm(cand["target"] - ref["target"], axis=2)[live]
@@ -567,9 +576,14 @@ def main(argv: list[str] | None = None) -> int:
         print(_line(track_comparison(args.fidelity, "full", args.list, tuple(args.solimp) if args.solimp else None)))
         return 0
     if args.cmd == "policy-tracks":
-        print(_line(policy_track_comparison(args.policy, args.env, args.fidelity, "full", args.trials, args.cache,
-                                            tuple(args.solimp) if args.solimp else None)))
-        return 0
+        from mjendo import cli
+        from mjendo.policies import PolicyError
+
+        if args.trials < 1:
+            ap.error(f"--trials must be >= 1, not {args.trials}")
+        return cli.run(lambda: print(_line(policy_track_comparison(
+            args.policy, args.env, args.fidelity, "full", args.trials, args.cache,
+            tuple(args.solimp) if args.solimp else None))), ConfigError, PolicyError)
     if args.cmd == "motion":
         for env in args.envs:
             print(_line(list_motion(env)), flush=True)

@@ -1,11 +1,14 @@
 """The model of record behaves like a damped elastic wall: held presses settle, episodes start settled."""
 
+import subprocess
+import sys
+
 import mujoco
 import numpy as np
 import pytest
 
 from mjendo import fidelity
-from mjendo.config import FIDELITIES, Material
+from mjendo.config import FIDELITIES, ConfigError, Material
 from mjendo.sim import Simulator
 from mjendo.task import NavigationTask
 
@@ -166,3 +169,14 @@ def test_a_policys_actions_replayed_open_loop_retrace_its_trial():
     softer = fidelity.policy_rollouts(spec, "SE", "fast", 1, actions=closed["action"], solimp=(0.1, 0.99, 0.01))
     moved = fidelity.rollout_figures(closed, softer)
     assert moved["steps"] == k and moved["tip_mean_mm"] > 0.0
+
+
+def test_policy_tracks_refuse_a_cache_of_other_trials(tmp_path):
+    cache = tmp_path / "ref.npz"
+    other = "models/policies/variants/D-paired in SE, full stomach"
+    np.savez_compressed(cache, steps=np.array([3]), made_by=np.array(other))
+    with pytest.raises(ConfigError, match="does not hold the trials of models/policies/variants/E-paired in SE"):
+        fidelity.policy_track_comparison("models/policies/variants/E-paired", "SE", "fast", cache=cache)
+    res = subprocess.run([sys.executable, "-m", "mjendo.fidelity", "policy-tracks", "--policy", "runs/E/nothing"],
+                         capture_output=True, text=True, timeout=120)
+    assert res.returncode == 2 and "unknown policy 'runs/E/nothing'" in res.stderr and "Traceback" not in res.stderr

@@ -152,7 +152,6 @@ def test_a_killed_trial_resumes_to_the_same_step_count(tiny_config, tmp_path):
         return [sys.executable, "-m", "mjendo.train", "--policy", "D", "--seed", "3", "--timesteps", "1024",
                 "--config", str(tiny_config), "--out", str(out)]
 
-    subprocess.run(cmd(tmp_path / "whole"), check=True, capture_output=True)
     proc = subprocess.Popen(cmd(tmp_path / "killed"), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     ckpts = tmp_path / "killed" / "D" / "seed3" / "checkpoints"
     deadline = time.time() + 300
@@ -162,9 +161,8 @@ def test_a_killed_trial_resumes_to_the_same_step_count(tiny_config, tmp_path):
     proc.wait()
     assert not (tmp_path / "killed" / "D" / "seed3" / "model.zip").exists(), "the run finished before the kill"
     subprocess.run(cmd(tmp_path / "killed"), check=True, capture_output=True)
-    steps = [json.loads((tmp_path / d / "D" / "seed3" / "meta.json").read_text())["timesteps"]
-             for d in ("whole", "killed")]
-    assert steps[0] == steps[1] == 1024
+    # The resumed run ends where an uninterrupted one does: two updates of 8 envs x 64 steps.
+    assert json.loads((tmp_path / "killed" / "D" / "seed3" / "meta.json").read_text())["timesteps"] == 1024
 
 
 @pytest.mark.integration

@@ -239,6 +239,13 @@ class Fidelity:
 LOAD_LEVELS = (1.0, 2.0, 3.0)  # x f0: the paper's DE, UE1, UE2
 
 
+def wall_solimp(compliance: float) -> tuple[float, float, float]:
+    """Scope-wall contact impedance a share ``compliance`` of the way from the fast stomach's (0) to
+    fast-compliant's (1), each of dmin, dmax and width linearly (Randomization.wall_compliance)."""
+    stiff, soft = np.array(Contact().solimp), np.array(FIDELITIES["fast-compliant"].contact_solimp)
+    return tuple(float(x) for x in stiff + compliance * (soft - stiff))
+
+
 def load_gain(gains, multiplier: float) -> float:
     """Gain on the periodic load at ``multiplier`` x f0, from the gains at LOAD_LEVELS."""
     return float(np.interp(multiplier, LOAD_LEVELS, gains))
@@ -311,29 +318,45 @@ class Randomization:
     # After new tissue and load parameters are set the wall is let settle this long (the scope held
     # straight at the cardia) before the episode's first observation: it settles within about 0.5 s.
     settle_s: float = 0.5
+    # Scope-wall contact impedance, drawn as a share of the way from the fast stomach's (Contact.solimp: 0)
+    # to the one calibrated on the FEM wall's tip paths (fast-compliant's contact_solimp: 1). Under a
+    # policy's own motions these two stomachs put the tip about 1 mm either side of the FEM wall's path
+    # (docs/physics.md "Under a policy's own motions"), so the range covers that model error. None: the
+    # scene's own impedance (the default).
+    wall_compliance: tuple[float, float] | None = None
 
-    RANGES = ("young_scale", "damping_scale", "load_scale", "half_period_s", "friction")
+    # Any of these set to None keeps the scene's value instead of drawing one.
+    RANGES = ("young_scale", "damping_scale", "load_scale", "half_period_s", "friction", "wall_compliance")
 
     def check(self) -> Randomization:
         """This randomization, or a ConfigError naming the bad range."""
         for name in self.RANGES:
             r = getattr(self, name)
+            if r is None:
+                continue
             ok = isinstance(r, tuple | list) and len(r) == 2 and all(
                 isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x) for x in r)
-            if not ok or not 0 < r[0] <= r[1]:
-                raise ConfigError(f"randomization {name} must be a range (low, high) with 0 < low <= high, "
+            share = name == "wall_compliance"  # a share of the way, 0 to 1; the rest are positive
+            if not ok or not r[0] <= r[1] or not (0 <= r[0] and r[1] <= 1 if share else 0 < r[0]):
+                bounds = "0 <= low <= high <= 1" if share else "0 < low <= high"
+                raise ConfigError(f"randomization {name} must be None or a range (low, high) with {bounds}, "
                                   f"not {r!r}")
         for name, hi in (("load_tilt_deg", 90.0), ("force_noise_n", math.inf), ("target_noise_mm", math.inf),
                          ("settle_s", math.inf)):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int | float) or not 0 <= v <= hi:
                 raise ConfigError(f"randomization {name} must be a number in [0, {hi:g}], not {v!r}")
-        return replace(self, **{n: tuple(float(x) for x in getattr(self, n)) for n in self.RANGES})
+        return replace(self, **{n: None if getattr(self, n) is None else tuple(float(x) for x in getattr(self, n))
+                                for n in self.RANGES})
 
     def draw(self, rng: np.random.Generator, nominal_direction) -> dict:
-        """One episode's parameters: scales, half period (s), load direction (unit vector), friction."""
+        """One episode's parameters: scales, half period (s), load direction (unit vector), friction, wall
+        compliance; None for a range that is not drawn (the scene's value)."""
         def log_uniform(r):
-            return float(np.exp(rng.uniform(np.log(r[0]), np.log(r[1]))))
+            return None if r is None else float(np.exp(rng.uniform(np.log(r[0]), np.log(r[1]))))
+
+        def uniform(r):
+            return None if r is None else float(rng.uniform(*r))
 
         n = np.asarray(nominal_direction, float)
         n = n / np.linalg.norm(n)
@@ -343,9 +366,9 @@ class Randomization:
         side /= np.linalg.norm(side)
         direction = cos_t * n + math.sqrt(max(0.0, 1.0 - cos_t**2)) * side
         return {"young_scale": log_uniform(self.young_scale), "damping_scale": log_uniform(self.damping_scale),
-                "load_scale": float(rng.uniform(*self.load_scale)),
-                "half_period_s": float(rng.uniform(*self.half_period_s)),
-                "load_direction": direction, "friction": float(rng.uniform(*self.friction))}
+                "load_scale": uniform(self.load_scale), "half_period_s": uniform(self.half_period_s),
+                "load_direction": direction, "friction": uniform(self.friction),
+                "wall_compliance": uniform(self.wall_compliance)}
 
 
 @dataclass(frozen=True)

@@ -352,7 +352,7 @@ def tip_tracks(fidelity: str, list_name: str = "A", solimp: tuple[float, ...] | 
     task = NavigationTask(env="SE", target_list=list_name, max_steps=10**6, randomize_phase=False,
                           fidelity=fidelity)
     if solimp is not None:
-        task.sim.model.flex_solimp[:, :len(solimp)] = solimp
+        task.sim.set_contact_solimp(solimp)
     tips = np.zeros((len(demos), targets.TRIAL_STEPS, 3))
     arrivals: dict[tuple[int, int], int | None] = {}
     for n, d in enumerate(demos):
@@ -400,7 +400,7 @@ def policy_rollouts(controller: str, env_name: str, fidelity: str, trials: int, 
     env = EndoscopeEnv(env_name, **obs_options_of(controller), max_steps=PAPER_EVAL_STEPS, fidelity=fidelity,
                        version=version_of(controller), randomization=randomization)
     if solimp is not None:
-        env.task.sim.model.flex_solimp[:, :len(solimp)] = solimp
+        env.task.sim.set_contact_solimp(solimp)
     ctrl = load_controller(controller, env.task) if actions is None else None
     n, k_max = trials, PAPER_EVAL_STEPS
     out = {"action": np.full((n, k_max, 5), np.nan), "tip": np.full((n, k_max, 3), np.nan),

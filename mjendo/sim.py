@@ -95,7 +95,7 @@ class Simulator:
         self._axes: np.ndarray | None = None
         self._scene_values = (self.load_amplitude, self.half_period, self.model.flex_stiffness.copy(),
                               self.model.flex_damping.copy(), self.model.geom_friction[:, 0].copy(),
-                              self.model.flex_friction[:, 0].copy())
+                              self.model.flex_friction[:, 0].copy(), self.model.flex_solimp.copy())
         self.reset()
 
     def _ids(self, m: mujoco.MjModel) -> None:
@@ -229,6 +229,12 @@ class Simulator:
         if self.has_stomach:
             m.flex_friction[self.flex, 0] = friction
 
+    def set_contact_solimp(self, solimp) -> None:
+        """Impedance of the scope-wall contact (MuJoCo solimp: dmin, dmax, width in m, ...) in place of the
+        scene's; MuJoCo mixes it with the scope's own as the scene file's does."""
+        if self.has_stomach:
+            self.model.flex_solimp[self.flex, :len(solimp)] = solimp
+
     def set_load(self, scale: float = 1.0, half_period: float | None = None, direction=None) -> None:
         """The periodic load: amplitude x ``scale`` of the condition's, half period (s), direction (world)."""
         self.load_amplitude = self._scene_values[0] * scale
@@ -246,11 +252,12 @@ class Simulator:
         return cycle_phase(self.data.time, self.half_period)
 
     def restore_scene_values(self) -> None:
-        """Tissue, friction and load as the scene file has them."""
+        """Tissue, friction, contact impedance and load as the scene file has them."""
         v = self._scene_values
         self.set_tissue()
         self.model.geom_friction[:, 0] = v[4]
         self.model.flex_friction[:, 0] = v[5]
+        self.model.flex_solimp[:] = v[6]
         self.set_load()
 
     def _load_axes(self) -> np.ndarray:

@@ -25,6 +25,7 @@ from mjendo.config import (
     default_target_list,
     substeps,
     task_config,
+    wall_solimp,
 )
 from mjendo.sim import InstabilityError, Simulator
 from mjendo.units import from_mm, to_mm
@@ -215,9 +216,12 @@ class NavigationTask:
         self.episode_params = {**p, "load_direction": [round(float(x), 6) for x in p["load_direction"]]}
         if not sim.has_stomach:
             return
-        sim.set_tissue(p["young_scale"], p["damping_scale"])
-        sim.set_friction(p["friction"])
-        sim.set_load(p["load_scale"], p["half_period_s"], p["load_direction"])
+        sim.set_tissue(p["young_scale"] or 1.0, p["damping_scale"] or 1.0)
+        if p["friction"] is not None:
+            sim.set_friction(p["friction"])
+        if p["wall_compliance"] is not None:
+            sim.set_contact_solimp(wall_solimp(p["wall_compliance"]))
+        sim.set_load(p["load_scale"] or 1.0, p["half_period_s"], p["load_direction"])
         sim.step(int(round(r.settle_s / sim.model.opt.timestep)))
 
     def set_target_weights(self, weights) -> None:

@@ -95,6 +95,9 @@ def test_randomized_episodes_draw_within_the_ranges_and_replay_from_their_seed()
         _, info = env.reset(seed=seed)
         p = info["randomization"]
         for name in Randomization.RANGES:
+            if getattr(r, name) is None:  # not drawn by default: the scene's value
+                assert p[name] is None
+                continue
             lo, hi = getattr(r, name)
             assert lo <= p[name] <= hi
         tilt = math.degrees(math.acos(np.clip(np.dot(p["load_direction"], env.task.sim.load_direction), -1, 1)))
@@ -106,6 +109,36 @@ def test_randomized_episodes_draw_within_the_ranges_and_replay_from_their_seed()
     b, info_b = env.reset(seed=7)
     np.testing.assert_array_equal(a, b)
     assert info_a["randomization"] == info_b["randomization"]
+
+
+def pressed_tip_path(env: EndoscopeEnv, target: int) -> np.ndarray:
+    """Tip positions (mm) over 25 steps that insert and bend the scope onto the wall, from load phase 0."""
+    env.reset(seed=3)
+    env.task.set_target(target)
+    path = []
+    for k in range(25):
+        obs, *_ = env.step(np.array([0.4, -0.4, 0.0, 0.0, 0.4 if k < 18 else 0.0]))
+        path.append(env.task.sim.tip_pos() * 1e3)
+    return np.array(path)
+
+
+def test_wall_compliance_spans_the_fast_and_the_compliant_stomachs_contact():
+    only = {name: None for name in Randomization.RANGES} | {"load_tilt_deg": 0.0, "force_noise_n": 0.0,
+                                                           "target_noise_mm": 0.0, "settle_s": 0.0}
+    target = int(EndoscopeEnv(env="DE").task.targets[0])
+    paths = {}
+    for name, fidelity, compliance in (("fast", "fast", None), ("compliant", "fast-compliant", None),
+                                       ("drawn 0", "fast", (0.0, 0.0)), ("drawn 1", "fast", (1.0, 1.0))):
+        env = EndoscopeEnv(env="DE", fidelity=fidelity, max_steps=30, randomize_phase=False,
+                           randomization=None if compliance is None else only | {"wall_compliance": compliance})
+        paths[name] = pressed_tip_path(env, target)
+        if compliance is not None:
+            env.task.sim.restore_scene_values()
+            assert np.array_equal(env.task.sim.model.flex_solimp, EndoscopeEnv(env="DE").task.sim.model.flex_solimp)
+    # The scope presses the wall, and the softer contact lets it in further: the two stomachs part.
+    assert np.abs(paths["fast"] - paths["compliant"]).max() > 0.5
+    np.testing.assert_allclose(paths["drawn 0"], paths["fast"], atol=1e-6)
+    np.testing.assert_allclose(paths["drawn 1"], paths["compliant"], atol=1e-6)
 
 
 def test_sensor_noise_is_in_the_observation_not_in_the_reward():
@@ -128,6 +161,7 @@ def test_sensor_noise_is_in_the_observation_not_in_the_reward():
 
 @pytest.mark.parametrize("bad, word", [({"young_scale": (2.0, 1.0)}, "young_scale"),
                                        ({"friction": (-0.1, 0.2)}, "friction"),
+                                       ({"wall_compliance": (0.5, 1.5)}, "wall_compliance"),
                                        ({"load_tilt_deg": 120.0}, "load_tilt_deg"),
                                        ({"stiffness": (1, 2)}, "unknown randomization"),
                                        ("yes", "randomization must be")])
@@ -137,10 +171,17 @@ def test_bad_randomization_names_the_field(bad, word):
 
 
 def test_randomization_from_yaml_lists_and_true():
+    from mjendo.paths import TRAINING_CONFIG
+    from mjendo.train_config import load
+
     assert task_config(randomization=True).randomization == Randomization()
     cfg = task_config(randomization={"young_scale": [0.5, 2.0]})
     assert cfg.randomization.young_scale == (0.5, 2.0)
     assert task_config(randomization=False).randomization is None
+    # A variant that draws the contact alone: its YAML nulls keep every other range at the scene's value.
+    r = load("E", TRAINING_CONFIG, variant="paired-impedance").task_config().randomization
+    assert r.wall_compliance == (0.0, 1.0)
+    assert [n for n in Randomization.RANGES if getattr(r, n) is not None] == ["wall_compliance"]
 
 
 @pytest.mark.parametrize("dof, tol", [("trilinear", 0.002), ("full", 0.1)])

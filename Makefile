@@ -20,8 +20,9 @@ $(STAMP): pyproject.toml
 setup: $(STAMP)
 
 # The default tier and the integration tier (wheel, Ray, MuJoCo Warp); `slow` stays out (pytest -m slow).
+# One test worker per core (pytest-xdist); Warp's and Ray's tests each keep to one worker.
 test: $(STAMP)
-	$(BIN)/python -m pytest -q -m "not slow" --durations=10
+	$(BIN)/python -m pytest -q -m "not slow" -n auto --dist loadgroup --durations=10
 
 bench: $(STAMP)
 	$(BIN)/python -m mjendo.bench

@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 pytest.importorskip("mujoco_warp", reason="the batched backend needs the optional extra mjendo[warp]")
-pytestmark = pytest.mark.integration  # MuJoCo Warp on its CPU device: kernels compile on first use
+# MuJoCo Warp on its CPU device: kernels compile on first use, so one test worker runs them all.
+pytestmark = [pytest.mark.integration, pytest.mark.xdist_group("warp")]
 
 from mjendo.batch import BatchedNavigation, uniform, vec_env  # noqa: E402
 from mjendo.config import ConfigError, task_config  # noqa: E402

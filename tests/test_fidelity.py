@@ -104,8 +104,7 @@ def test_static_stomach_has_one_start_state():
     assert len(task._starts) == 1
 
 
-@pytest.mark.slow  # two full-stomach load cycles (36-50 s): the default suite keeps the committed scene's check
-def test_full_wall_motion_does_not_depend_on_the_timestep():
+def test_full_wall_motion_does_not_depend_on_the_timestep():  # two full-stomach load cycles, 36-50 s
     # Without the viscera's drag the stomach's slowest mode rang and the 10 ms step's numerical
     # damping hid it: target motion 14.5 mm at 10 ms, 17.8 at 5 ms (DE median). With it: 11.1, ~11.4.
     from dataclasses import replace

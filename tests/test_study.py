@@ -56,6 +56,7 @@ def tiny_config(tmp_path_factory):
 
 
 @pytest.mark.integration
+@pytest.mark.xdist_group("ray")  # one Ray instance at a time
 def test_a_tiny_grid_runs_on_ray_and_reports_intervals(tiny_config, tmp_path, monkeypatch):
     import ray
 
@@ -145,6 +146,7 @@ def _tiny_grid_checks(cfg, tiny_config, tmp_path, monkeypatch):
 
 
 @pytest.mark.integration
+@pytest.mark.xdist_group("ray")  # one Ray instance at a time
 def test_a_killed_trial_resumes_to_the_same_step_count(tiny_config, tmp_path):
     import json
 
@@ -166,6 +168,7 @@ def test_a_killed_trial_resumes_to_the_same_step_count(tiny_config, tmp_path):
 
 
 @pytest.mark.integration
+@pytest.mark.xdist_group("ray")  # one Ray instance at a time
 def test_an_unreachable_cluster_address_is_a_clear_error(tmp_path):
     from mjendo.study import StudyConfig, connect
 

@@ -167,7 +167,6 @@ def test_slack_report_compares_the_full_stomach_trial_by_trial_even_when_nothing
                                                        "the trial in the full one")
 
 
-@pytest.mark.slow  # 12 races of the demonstrators, 27-43 s
 def test_the_fastest_known_way_is_never_later_than_the_recorded_one_and_more_phases_include_the_maps_own(tmp_path):
     # One contact-aided target, its recorded demonstrators (one per start) raced against each other from every
     # start: from each start the fastest arrives no later than that start's own recorded one, and the recorded

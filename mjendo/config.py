@@ -337,7 +337,7 @@ class Randomization:
             ok = isinstance(r, tuple | list) and len(r) == 2 and all(
                 isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x) for x in r)
             share = name == "wall_compliance"  # a share of the way, 0 to 1; the rest are positive
-            if not ok or not r[0] <= r[1] or not (0 <= r[0] and r[1] <= 1 if share else 0 < r[0]):
+            if not ok or not ((0 <= r[0] <= r[1] <= 1) if share else (0 < r[0] <= r[1])):
                 bounds = "0 <= low <= high <= 1" if share else "0 < low <= high"
                 raise ConfigError(f"randomization {name} must be None or a range (low, high) with {bounds}, "
                                   f"not {r!r}")

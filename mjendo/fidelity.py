@@ -534,6 +534,9 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m mjendo.fidelity", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = ap.add_subparsers(dest="cmd", required=True)
+    impedance = argparse.ArgumentParser(add_help=False)  # the tracks protocols' candidate contact
+    impedance.add_argument("--solimp", type=float, nargs=3, metavar=("DMIN", "DMAX", "WIDTH_M"),
+                           help="a candidate impedance of the scope-wall contact in place of the scene's")
     c = sub.add_parser("compare", help="ratios of a candidate fast stomach's figures to the full one's")
     c.add_argument("--cells", type=int, nargs=3, help="trilinear cell counts of the candidate")
     c.add_argument("--young-scale", type=float, help="young's modulus factor of the candidate")
@@ -554,26 +557,23 @@ def main(argv: list[str] | None = None) -> int:
     sp.add_argument("--young-scales", type=float, nargs="+",
                     help="also with the wall's modulus fixed at each of these factors (the randomization's ends)")
     sub.add_parser("modulus", help="the Young's modulus and Poisson ratio MuJoCo's 3D flexes realise (a cube)")
-    tr = sub.add_parser("tracks", help="a fast stomach's tip paths against the full one's under the same motions "
-                        "(about 12 min on one core, 11 of them the full stomach)")
+    tr = sub.add_parser("tracks", parents=[impedance], help="a fast stomach's tip paths against the full one's "
+                        "under the same motions (about 12 min on one core, 11 of them the full stomach)")
     tr.add_argument("--fidelity", choices=[f for f in FIDELITIES if f != "full"], default="fast-compliant")
     tr.add_argument("--list", default="A", choices=("A", "B"))
-    tr.add_argument("--solimp", type=float, nargs=3, metavar=("DMIN", "DMAX", "WIDTH_M"),
-                    help="a candidate impedance of the scope-wall contact in place of the scene's")
-    pt = sub.add_parser("policy-tracks", help="a policy's closed-loop trials in the full stomach replayed in a "
-                        "fast one: tip, target and force apart under the policy's own motions")
+    pt = sub.add_parser("policy-tracks", parents=[impedance], help="a policy's closed-loop trials in the full "
+                        "stomach replayed in a fast one: tip, target and force apart under the policy's own motions")
     pt.add_argument("--policy", required=True, help="a policy spec, e.g. models/policies/variants/E-paired")
     pt.add_argument("--env", default="SE", choices=("SE", "DE", "UE1", "UE2"))
     pt.add_argument("--fidelity", choices=[f for f in FIDELITIES if f != "full"], default="fast")
     pt.add_argument("--trials", type=int, default=65)
     pt.add_argument("--cache", type=Path, help="an .npz of the full stomach's rollouts: read if present, else written")
-    pt.add_argument("--solimp", type=float, nargs=3, metavar=("DMIN", "DMAX", "WIDTH_M"),
-                    help="a candidate impedance of the scope-wall contact in place of the scene's")
     lm = sub.add_parser("motion", help="how far the listed targets move between the two load states")
     lm.add_argument("--envs", nargs="+", default=["DE", "UE1", "UE2"])
     args = ap.parse_args(argv)
+    solimp = tuple(args.solimp) if getattr(args, "solimp", None) else None
     if args.cmd == "tracks":
-        print(_line(track_comparison(args.fidelity, "full", args.list, tuple(args.solimp) if args.solimp else None)))
+        print(_line(track_comparison(args.fidelity, "full", args.list, solimp)))
         return 0
     if args.cmd == "policy-tracks":
         from mjendo import cli
@@ -582,8 +582,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.trials < 1:
             ap.error(f"--trials must be >= 1, not {args.trials}")
         return cli.run(lambda: print(_line(policy_track_comparison(
-            args.policy, args.env, args.fidelity, "full", args.trials, args.cache,
-            tuple(args.solimp) if args.solimp else None))), ConfigError, PolicyError)
+            args.policy, args.env, args.fidelity, "full", args.trials, args.cache, solimp))), ConfigError, PolicyError)
     if args.cmd == "motion":
         for env in args.envs:
             print(_line(list_motion(env)), flush=True)

@@ -180,3 +180,17 @@ def test_policy_tracks_refuse_a_cache_of_other_trials(tmp_path):
     res = subprocess.run([sys.executable, "-m", "mjendo.fidelity", "policy-tracks", "--policy", "runs/E/nothing"],
                          capture_output=True, text=True, timeout=120)
     assert res.returncode == 2 and "unknown policy 'runs/E/nothing'" in res.stderr and "Traceback" not in res.stderr
+
+
+def test_the_one_cell_stomach_is_calibrated_as_the_fast_one():
+    # fast-coarse (8 trilinear nodes) drives its load with its own gains: its median target motion over a load
+    # cycle is the fast stomach's (both the full stomach's 3.14 mm in DE), although its 8 nodes move the
+    # targets as one block (larger maximum); its presses push back as hard as the fast stomach's within 2x.
+    targets = fidelity.all_targets()
+    coarse, fast = (fidelity.target_motion(Simulator("DE", f), targets) for f in ("fast-coarse", "fast"))
+    assert np.median(coarse) == pytest.approx(np.median(fast), rel=0.03)
+    assert np.median(coarse) > 2.5e-3  # the wall does move: 3 mm, not a block held still
+    sims = {f: Simulator("SE", f) for f in ("fast-coarse", "fast")}
+    for press in fidelity.PRESSES[::2]:
+        a, b = (fidelity.press_force(sims[f], press) for f in ("fast-coarse", "fast"))
+        assert 0.5 < a / b < 2.0, f"{press.name}: fast-coarse {a:.3f} N, fast {b:.3f} N"

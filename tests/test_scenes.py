@@ -37,7 +37,7 @@ def test_committed_scene_is_current(env, fidelity):
 def test_one_scene_per_fidelity_plus_fe():
     # SE, DE, UE1 and UE2 share their fidelity's scene; only the load amplitude differs, set by the Simulator.
     assert sorted(p.name for p in scene.SCENES_DIR.glob("*.xml")) == [
-        "FE.xml", "stomach_fast-compliant.xml", "stomach_fast.xml", "stomach_full.xml"]
+        "FE.xml", "stomach_fast-coarse.xml", "stomach_fast-compliant.xml", "stomach_fast.xml", "stomach_full.xml"]
     paths = {scene.scene_path(e, "fast") for e in ("SE", "DE", "UE1", "UE2")}
     assert paths == {scene.SCENES_DIR / "stomach_fast.xml"}
     amplitudes = {e: Simulator(e, "fast").f0 for e in ("SE", "DE", "UE1", "UE2")}
@@ -62,11 +62,25 @@ def test_dm_control_physics_builds_from_scene():
 def test_unknown_names_list_valid_ones():
     with pytest.raises(ConfigError, match="valid: FE, SE, DE, UE1, UE2"):
         scene_config("XE")
-    with pytest.raises(ConfigError, match="valid: fast, fast-compliant, full"):
+    with pytest.raises(ConfigError, match="valid: fast, fast-compliant, fast-coarse, full"):
         Simulator("DE", "medium")
     # The compliant fast stomach was calibrated for version 1's scope: version 0 has no scene of it.
     with pytest.raises(ConfigError, match="'fast-compliant' stomach exists from task version 1.*'fast' or 'full'"):
         Simulator("DE", "fast-compliant", version=0)
+
+
+def test_a_trilinear_grid_without_a_load_calibration_is_refused(monkeypatch):
+    # The load gain of a reduced-order stomach belongs to its grid: a grid without one would move the wall
+    # by an arbitrary amount, so it gets a clear error naming the calibration, not a silently wrong wall.
+    from dataclasses import replace
+
+    from mjendo.config import FIDELITIES
+
+    monkeypatch.setitem(FIDELITIES, "fast-27", replace(FIDELITIES["fast"], name="fast-27", cellcount=(3, 3, 3)))
+    with pytest.raises(ConfigError, match=r"grid \(3, 3, 3\) has no load calibration in task version 1.*compare"):
+        fidelity_preset("fast-27", 1)
+    assert fidelity_preset("fast-coarse").load_gains == pytest.approx((13.76, 14.02, 14.33))
+    assert fidelity_preset("fast").load_gains == pytest.approx((2.85, 2.91, 2.98))
 
 
 def test_unusable_physics_parameters_are_rejected_with_the_fix():

@@ -81,7 +81,7 @@ class EndoscopeEnv(gym.Env):
     | ``scope_obs`` | False | include insertion depth and tip pose (not the paper's; train/policies.yaml variants) |
     | ``time_obs`` | False | include the share of the trial left; reaching ``max_steps`` then terminates instead of truncating (not the paper's) |
     | ``phase_obs`` | False | include the breathing cycle's phase, as a respiratory belt or the ventilator gives it (not the paper's) |
-    | ``fidelity`` | "fast" | "fast" (reduced-order stomach), "fast-compliant" (its contact calibrated to the FEM wall's tip paths) or "full" (per-vertex FEM) |
+    | ``fidelity`` | "fast" | "fast" (reduced-order stomach), "fast-compliant" (its contact calibrated to the FEM wall's tip paths), "fast-coarse" (on one trilinear cell: faster) or "full" (per-vertex FEM) |
     | ``target_list`` | the env's | "A" (training), "B" (held out), "F" (free-space targets: FE's own), or joined: "A+F" (each list drawn equally often) |
     | ``version`` | set by the id | task version (below) |
     | ``max_steps`` | 128 | truncation limit |

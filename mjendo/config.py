@@ -225,7 +225,8 @@ class Fidelity:
     # target motion matches the full model too (docs/physics.md). One gain per
     # load level (1, 2, 3 x f0: DE, UE1, UE2; interpolated between): the full
     # stomach softens under large loads (its UE2 motion is 4.5x DE's for 3x the
-    # load), the trilinear one does not (2.8x).
+    # load), the trilinear one does not (2.8x). Named stomachs take theirs from
+    # TaskVersion.fast_load_gains (per grid); a Fidelity given as such keeps its own.
     load_gains: tuple[float, float, float] = (1.0, 1.0, 1.0)
     # Impedance (MuJoCo solimp: dmin, dmax, width in m) of the scope-wall contact; None: Contact.solimp.
     # A wall interpolated on 27 nodes cannot give locally under the tube lying on it as the FEM wall does;
@@ -254,15 +255,15 @@ def load_gain(gains, multiplier: float) -> float:
 FIDELITIES: dict[str, Fidelity] = {
     # Default: reduced-order stomach, interpolated on a trilinear grid (also
     # supported by MuJoCo Warp); collision still uses the full mesh.
-    # young_scale and load_gains were calibrated against "full" with
-    # `python -m mjendo.fidelity` (docs/physics.md "Calibration"): press forces
-    # within 1.25x (0.5 mm contact), target motion within 25 %.
-    "fast": Fidelity("fast", "trilinear", (2, 2, 2), young_scale=0.05, load_gains=(4.1, 5.7, 6.3),
+    # young_scale was calibrated against "full" with `python -m mjendo.fidelity`
+    # (docs/physics.md "Calibration"): press forces within 1.25x (0.5 mm contact);
+    # its load gains (target motion) are the task version's (TaskVersion.fast_load_gains).
+    "fast": Fidelity("fast", "trilinear", (2, 2, 2), young_scale=0.05,
                      solver="Newton", description="the fast (reduced-order, calibrated) stomach"),
     # The fast stomach with the contact impedance that puts its tip where the FEM stomach's goes under the
     # same motions: tip paths 1.3 mm from the full stomach's on average against 2.3 (docs/physics.md).
     "fast-compliant": Fidelity("fast-compliant", "trilinear", (2, 2, 2), young_scale=0.05,
-                               load_gains=(4.1, 5.7, 6.3), solver="Newton", contact_solimp=(0.3, 0.99, 0.005),
+                               solver="Newton", contact_solimp=(0.3, 0.99, 0.005),
                                first_version=1, description="the fast stomach with the contact calibrated to the "
                                "full stomach's tip paths"),
     # The fast stomach on one trilinear cell (8 nodes, 24 dofs): 1.6x the env steps/s under a trained policy, the

@@ -4,7 +4,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from mjendo.config import FIDELITIES, load_gain
+from mjendo.config import fidelity_preset, load_gain
 from mjendo.sim import Simulator, square_wave
 
 
@@ -76,7 +76,7 @@ def test_stronger_environments_move_the_wall_more(stomach):
 
     # The fast stomach is linear; its load carries a calibrated gain per level (the full FEM wall softens under
     # large loads), so the motion scales with multiplier x gain: 2.78x and 4.61x DE's.
-    gains = FIDELITIES["fast"].load_gains
+    gains = fidelity_preset("fast").load_gains  # the task version's calibration, which the scene carries
     de, ue1, ue2 = amp("DE"), amp("UE1"), amp("UE2")
     for multiplier, motion in ((2, ue1), (3, ue2)):
         expected = multiplier * load_gain(gains, multiplier) / load_gain(gains, 1)

@@ -299,8 +299,8 @@ def solver_study(caps: list[int], tolerances: list[float], fidelity: str = "full
 
 
 def spikes(version: int, episodes: int = 20, seed: int = 0, env: str = "DE", push: float = 0.5,
-           randomization=None) -> dict:
-    """Contact-force spikes under bang-bang random actions in the fast stomach of a task version.
+           randomization=None, fidelity: str = "fast") -> dict:
+    """Contact-force spikes under bang-bang random actions in a reduced-order stomach of a task version.
 
     Every control step records the resultant contact force and how far the tip jumped; the share of steps
     above 1, 2, 10 and 20 N, the largest force, and the tip jump on the steps above 10 N against the rest
@@ -311,7 +311,8 @@ def spikes(version: int, episodes: int = 20, seed: int = 0, env: str = "DE", pus
     """
     from mjendo.task import NavigationTask
 
-    task = NavigationTask(env=env, version=version, force_obs=True, max_steps=128, randomization=randomization)
+    task = NavigationTask(env=env, fidelity=fidelity, version=version, force_obs=True, max_steps=128,
+                          randomization=randomization)
     rng = np.random.default_rng(seed)
     force, jump, speed = [], [], []
     for _ in range(episodes):
@@ -330,7 +331,7 @@ def spikes(version: int, episodes: int = 20, seed: int = 0, env: str = "DE", pus
                 break
     f, j, v = np.array(force), np.array(jump), np.array(speed)
     big, strong = f > 10.0, f > 2.0
-    return {"version": version, "push": push, "steps": len(f), "over_1N": float(np.mean(f > 1)),
+    return {"version": version, "fidelity": fidelity, "push": push, "steps": len(f), "over_1N": float(np.mean(f > 1)),
             "over_2N": float(np.mean(strong)), "over_10N": float(np.mean(big)), "over_20N": float(np.mean(f > 20)),
             "max_N": float(f.max()), "median_jump_mm": float(np.median(j)),
             "median_jump_over_2N_mm": float(np.median(j[strong])) if strong.any() else float("nan"),
@@ -550,8 +551,9 @@ def main(argv: list[str] | None = None) -> int:
     sv.add_argument("--solvers", nargs="+", choices=list(SOLVERS), default=[], help="default: the preset's")
     sv.add_argument("--iterations", type=int, nargs="+", default=[1000])
     sv.add_argument("--tolerances", type=float, nargs="+", default=[1e-8, 1e-7, 1e-6])
-    sp = sub.add_parser("spikes", help="contact-force spikes under bang-bang random actions (fast DE)")
+    sp = sub.add_parser("spikes", help="contact-force spikes under bang-bang random actions (DE)")
     sp.add_argument("--versions", type=int, nargs="+", default=sorted(VERSIONS))
+    sp.add_argument("--fidelity", choices=[f for f in FIDELITIES if f != "full"], default="fast")
     sp.add_argument("--episodes", type=int, default=20)
     sp.add_argument("--push", type=float, default=0.5, help="chance that a step inserts (0.5: unbiased)")
     sp.add_argument("--young-scales", type=float, nargs="+",
@@ -594,14 +596,18 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"poisson {poisson}: {dof:<9} realised E / young {e:.3f}, lateral / axial strain {nu:.3f}")
         return 0
     if args.cmd == "spikes":
-        for v in args.versions:
-            rows = [spikes(v, args.episodes, push=args.push)]
-            rows += [{"young_scale": k, **spikes(v, args.episodes, push=args.push,
-                                                 randomization={"young_scale": (k, k)})}
-                     for k in args.young_scales or []]
-            for row in rows:
-                print(_line(row, digits=4), flush=True)
-        return 0
+        from mjendo import cli
+
+        def report() -> None:
+            for v in args.versions:
+                rows = [spikes(v, args.episodes, push=args.push, fidelity=args.fidelity)]
+                rows += [{"young_scale": k, **spikes(v, args.episodes, push=args.push, fidelity=args.fidelity,
+                                                     randomization={"young_scale": (k, k)})}
+                         for k in args.young_scales or []]
+                for row in rows:
+                    print(_line(row, digits=4), flush=True)
+
+        return cli.run(report, ConfigError)
     if args.cmd == "refine":
         refinement_study(args.levels)
         return 0

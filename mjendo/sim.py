@@ -123,6 +123,10 @@ class Simulator:
         # weight behind the cardia would lever the pivot (it is still simulated, to be fed in).
         self.pivot = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, endoscope.PIVOT)
         self.support_body = np.array(sorted(scope_bodies), dtype=np.int64) if self.pivot >= 0 else np.zeros(0, int)
+        # The scope's bodies are numbered consecutively: a slice writes their forces without a gather per step.
+        contiguous = self.support_body.size and np.all(np.diff(self.support_body) == 1)
+        self._support_rows = slice(int(self.support_body[0]), int(self.support_body[-1]) + 1) if contiguous \
+            else self.support_body
         self.support_length = np.array([link_length(m, b) for b in self.support_body])
         self.support_weight = -m.body_mass[self.support_body, None] * m.opt.gravity[None, :]
         # Where each link starts along the pivot's axis at insertion 0 (the straight tube of qpos0): the tube
@@ -282,18 +286,19 @@ class Simulator:
         """Hold up the part of the tube that is still in the oesophagus (behind the cardia pivot)."""
         d = self.data
         behind = oesophagus_share(self.support_start + d.qpos[self.insert_qpos], self.support_length)
-        d.xfrc_applied[self.support_body, :3] = behind[:, None] * self.support_weight
+        d.xfrc_applied[self._support_rows, :3] = behind[:, None] * self.support_weight
 
     def step(self, n: int = 1) -> None:
         """Advance n physics steps, driving the periodic load; raise on divergence."""
         m, d = self.model, self.data
+        loaded, supported, ctrl = self.load_act >= 0, self.support_body.size > 0, d.ctrl
         for _ in range(n):
-            if self.load_act >= 0:
+            if loaded:
                 wave = square_wave(d.time, self.load_amplitude, self.half_period)
-                d.ctrl[self.load_act] = wave * self._along
+                ctrl[self.load_act] = wave * self._along
                 if self._across is not None:
                     d.qfrc_applied[:] = wave * self._across
-            if self.support_body.size:
+            if supported:
                 self.support()
             mujoco.mj_step(m, d)
         self.check()
@@ -302,17 +307,18 @@ class Simulator:
         self.data.warning.number[:] = 0
 
     # MuJoCo resets the state itself on a NaN and only leaves one of these warnings.
-    _BAD = [int(mujoco.mjtWarning.mjWARN_BADQACC), int(mujoco.mjtWarning.mjWARN_BADQVEL),
-            int(mujoco.mjtWarning.mjWARN_BADQPOS)]
+    _BAD = (int(mujoco.mjtWarning.mjWARN_BADQACC), int(mujoco.mjtWarning.mjWARN_BADQVEL),
+            int(mujoco.mjtWarning.mjWARN_BADQPOS))
     _BADCTRL = int(mujoco.mjtWarning.mjWARN_BADCTRL)
 
     def check(self) -> None:
         d = self.data
-        if d.warning.number[self._BADCTRL]:
+        number = d.warning.number
+        if number[self._BADCTRL]:
             raise InstabilityError(f"a control was NaN or inf at t = {d.time:.3f} s (MuJoCo zeroed it, so the "
                                    "actuators stopped): check the task's action scales (cable_mm_per_unit, "
                                    "insertion_mm_per_unit) and the actions")
-        bad = int(d.warning.number[self._BAD].sum())
+        bad = sum(int(number[i]) for i in self._BAD)
         speed = float(np.abs(d.qvel).max()) if d.qvel.size else 0.0
         if bad or not speed < MAX_SPEED:
             raise InstabilityError(

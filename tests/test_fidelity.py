@@ -194,3 +194,14 @@ def test_the_one_cell_stomach_is_calibrated_as_the_fast_one():
     for press in fidelity.PRESSES[::2]:
         a, b = (fidelity.press_force(sims[f], press) for f in ("fast-coarse", "fast"))
         assert 0.5 < a / b < 2.0, f"{press.name}: fast-coarse {a:.3f} N, fast {b:.3f} N"
+
+
+def test_the_spike_protocol_drives_any_fast_stomach_into_the_wall_and_refuses_one_a_version_lacks():
+    # Two bang-bang episodes that insert on most steps reach the wall of the one-cell stomach: the scope pushes
+    # on it with tenths of a newton (the 3 N feeder's share), and every step is counted.
+    row = fidelity.spikes(1, episodes=2, push=0.9, fidelity="fast-coarse")
+    assert row["fidelity"] == "fast-coarse" and row["steps"] > 100
+    assert 0.2 < row["max_N"] < 10.0 and row["over_10N"] == 0.0
+    res = subprocess.run([sys.executable, "-m", "mjendo.fidelity", "spikes", "--versions", "0", "--fidelity",
+                          "fast-coarse", "--episodes", "1"], capture_output=True, text=True, timeout=120)
+    assert res.returncode == 2 and "exists from task version 1" in res.stderr and "Traceback" not in res.stderr

@@ -123,10 +123,6 @@ class Simulator:
         # weight behind the cardia would lever the pivot (it is still simulated, to be fed in).
         self.pivot = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, endoscope.PIVOT)
         self.support_body = np.array(sorted(scope_bodies), dtype=np.int64) if self.pivot >= 0 else np.zeros(0, int)
-        # The scope's bodies are numbered consecutively: a slice writes their forces without a gather per step.
-        contiguous = self.support_body.size and np.all(np.diff(self.support_body) == 1)
-        self._support_rows = slice(int(self.support_body[0]), int(self.support_body[-1]) + 1) if contiguous \
-            else self.support_body
         self.support_length = np.array([link_length(m, b) for b in self.support_body])
         self.support_weight = -m.body_mass[self.support_body, None] * m.opt.gravity[None, :]
         # Where each link starts along the pivot's axis at insertion 0 (the straight tube of qpos0): the tube
@@ -286,7 +282,7 @@ class Simulator:
         """Hold up the part of the tube that is still in the oesophagus (behind the cardia pivot)."""
         d = self.data
         behind = oesophagus_share(self.support_start + d.qpos[self.insert_qpos], self.support_length)
-        d.xfrc_applied[self._support_rows, :3] = behind[:, None] * self.support_weight
+        d.xfrc_applied[self.support_body, :3] = behind[:, None] * self.support_weight
 
     def step(self, n: int = 1) -> None:
         """Advance n physics steps, driving the periodic load; raise on divergence."""

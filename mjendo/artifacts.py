@@ -258,30 +258,70 @@ def obs_options(directory: Path) -> dict[str, bool]:
     return {k: k == "force_obs" and load(directory).n_obs == obs_size(True) for k in OBS_OPTIONS}
 
 
-def slim_copy(src: Path, dest: Path) -> None:
+# The value function's parameters in SB3's ActorCriticPolicy state: acting never reads them.
+VALUE_PARAMS = ("mlp_extractor.value_net.", "value_net.")
+
+
+def slim_copy(src: Path, dest: Path, actor_only: bool = False) -> None:
     """Copy model.zip without the optimizer's moments (two thirds of the file; a shipped policy only acts),
-    deflated (SB3 stores its members uncompressed; deflating saves about a tenth)."""
+    deflated (SB3 stores its members uncompressed; deflating saves about a tenth). ``actor_only``: the value
+    function zeroed too (half of the rest once deflated), for study seeds that are only evaluated."""
     import io
     import zipfile
 
     import torch
 
+    def rewrite(data: bytes, edit) -> bytes:
+        state = torch.load(io.BytesIO(data), map_location="cpu", weights_only=False)
+        edit(state)
+        buf = io.BytesIO()
+        torch.save(state, buf)
+        return buf.getvalue()
+
+    def zero_value(state: dict) -> None:
+        for k, v in state.items():
+            if k.startswith(VALUE_PARAMS):
+                v.zero_()
+
     with zipfile.ZipFile(src) as zin, zipfile.ZipFile(dest, "w", zipfile.ZIP_DEFLATED, compresslevel=9) as zout:
         for item in zin.infolist():
             data = zin.read(item.filename)
             if item.filename == "policy.optimizer.pth":
-                state = torch.load(io.BytesIO(data), map_location="cpu", weights_only=False)
-                state["state"] = {}
-                buf = io.BytesIO()
-                torch.save(state, buf)
-                data = buf.getvalue()
+                data = rewrite(data, lambda state: state.update(state={}))
+            elif item.filename == "policy.pth" and actor_only:
+                data = rewrite(data, zero_value)
             item.compress_type = zipfile.ZIP_DEFLATED  # the member's own (stored) method would override the archive's
             zout.writestr(item, data)
 
 
-def ship(run: Path, policy: str, dest: Path | None = None) -> Path:
-    """Copy a finished run's final policy into models/policies/<policy>/ (what users get); a variant's run
-    (train/policies.yaml's variants) into models/policies/variants/<policy>-<variant>/, beside the paper's.
+def is_actor_only(model: Path) -> bool:
+    """Whether a model.zip is an evaluation copy (:func:`slim_copy` ``actor_only``): its value function is zero."""
+    import io
+    import zipfile
+
+    import torch
+
+    with zipfile.ZipFile(model) as z:
+        state = torch.load(io.BytesIO(z.read("policy.pth")), map_location="cpu", weights_only=False)
+    values = [v for k, v in state.items() if k.startswith(VALUE_PARAMS)]
+    return bool(values) and not any(bool(v.any()) for v in values)
+
+
+def home(policy: str, variant: str | None) -> Path:
+    """Where a policy of this variant ships: models/policies/<P>/ for the letter's shipped recipe (the training
+    config's ``shipped``, or its paper entry if none), else models/policies/variants/<P>-<variant>/ (a run of
+    the paper's entry, variant None, of a letter that ships another recipe: <P>-paper)."""
+    from mjendo.train_config import shipped_variant
+
+    shipped = shipped_variant(policy, paths.TRAINING_CONFIG)
+    if variant == shipped:
+        return paths.policies_dir() / policy
+    return paths.policies_dir() / "variants" / f"{policy}-{variant or 'paper'}"
+
+
+def ship(run: Path, policy: str, dest: Path | None = None, actor_only: bool = False) -> Path:
+    """Copy a finished run's final policy into models/policies/<policy>/ (what users get); another variant's run
+    (train/policies.yaml's variants) into models/policies/variants/<policy>-<variant>/, beside it.
 
     Model (without optimizer moments), normalisation, meta and config only: logs stay in the run.
     The run's own meta.json travels with it: what the run used, never today's defaults. Final
@@ -293,16 +333,14 @@ def ship(run: Path, policy: str, dest: Path | None = None) -> Path:
     if not (run / MODEL_FILE).exists() or not meta.get("timesteps"):
         raise PolicyError(f"{run} is not a finished run (no {MODEL_FILE} or no trained steps in {META_FILE}); "
                           "finish it with the same `make train` command first")
-    variant = meta.get("training", {}).get("variant")
-    dest = Path(dest) if dest else paths.policies_dir() / "variants" / f"{policy}-{variant}" if variant \
-        else paths.policies_dir() / policy
+    dest = Path(dest) if dest else home(policy, meta.get("training", {}).get("variant"))
     dest.mkdir(parents=True, exist_ok=True)
     for name in (CONFIG_FILE, NORM_FILE):
         if (run / name).exists():
             shutil.copy2(run / name, dest / name)
     last = _last_evaluation(run)
     write_meta(dest, {**meta, "final_evaluation": last} if last else meta)
-    slim_copy(run / MODEL_FILE, dest / MODEL_FILE)
+    slim_copy(run / MODEL_FILE, dest / MODEL_FILE, actor_only)
     return dest
 
 

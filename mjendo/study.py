@@ -86,8 +86,10 @@ def split_spec(spec: str) -> tuple[str, str | None]:
 
 
 def policy_home(spec: str) -> Path:
-    """Where an entry's shipped policy lives: models/policies/<P>/, a variant's models/policies/variants/<P>-<v>/."""
-    return paths.policies_dir() / ("variants" if split_spec(spec)[1] else "") / spec
+    """Where an entry's shipped policy lives: models/policies/<P>/ (the letter's shipped recipe), another
+    variant's models/policies/variants/<P>-<v>/."""
+    letter, variant = split_spec(spec)
+    return paths.policies_dir() / letter if variant is None else artifacts.home(letter, variant)
 
 
 # Validation (choosing the seed to ship): trials in the policy's own training condition on seeds of their
@@ -237,22 +239,25 @@ def publish(cfg: StudyConfig) -> None:
     """Ship each policy's best seed to models/policies/<P>/ (a variant's to models/policies/variants/<P>-<v>/)
     and every seed, with its study trials, to <that folder>/seeds/seed<N>/ (model without optimizer moments,
     normalisation, meta, config; the shipped seed's folder without model and normalisation, which are the
-    shipped policy's). A variant's other seeds keep their weights only when a variant starts from them: the
-    rest are reported from their trials (the weights stay in git history), so the tree stays small."""
+    shipped policy's). Other seeds that no variant starts from are only re-evaluated: a letter's keep the
+    policy without its value function (artifacts.slim_copy ``actor_only``), a variant's only their trials (the
+    weights stay in git history), so the tree stays small."""
     best, sources = best_seeds(cfg), started_from(cfg)
     for p in cfg.policies:
+        variant = policy_home(p).parent.name == "variants"
         for seed in cfg.seeds_of(p):
             run = run_folder(cfg, p, seed)
             if not (run / artifacts.MODEL_FILE).exists():
                 continue  # adopted from its published folder without weights: that folder is its record
-            dest = artifacts.ship(run, split_spec(p)[0], seed_folder(p, seed))
+            evaluated_only = seed != best[p][0] and seed_folder(p, seed).resolve() not in sources
+            dest = artifacts.ship(run, split_spec(p)[0], seed_folder(p, seed), actor_only=evaluated_only)
             for f in [run / "evaluations.csv", *study_files(run)]:
                 if f.exists():
                     shutil.copy2(f, dest / f.name)
-            if split_spec(p)[1] and seed != best[p][0] and dest.resolve() not in sources:
+            if variant and evaluated_only:
                 for name in (artifacts.MODEL_FILE, artifacts.NORM_FILE):
                     (dest / name).unlink()
-        artifacts.ship(run_folder(cfg, p, best[p][0]), split_spec(p)[0])
+        artifacts.ship(run_folder(cfg, p, best[p][0]), split_spec(p)[0], policy_home(p))
         for name in (artifacts.MODEL_FILE, artifacts.NORM_FILE):  # in git once: artifacts.model_home finds them
             (seed_folder(p, best[p][0]) / name).unlink(missing_ok=True)
 
@@ -262,18 +267,19 @@ def eval_seeds(cfg: StudyConfig) -> list[int]:
     return [EVAL_SEED_BASE + i for i in range(cfg.trials)]
 
 
-def _read_results(run: Path, cfg: StudyConfig) -> list[dict] | None:
+def _cached_cells(run: Path, cfg: StudyConfig, policy: str) -> dict[str, list[dict]]:
+    """A run's cached trials per environment that this study can report as they are: measured on this stomach,
+    these scene files and target lists, with this many trials (the same seeds). A study over more environments
+    than an earlier one evaluates only the new ones. Rows carry this study's name for the policy."""
     path = run / results_file(cfg)
     if not path.exists():
-        return None
-    rows = read_table(path)
-    envs = {r["env"] for r in rows}
-    want = {e for _, e in _cells(cfg, rows[0]["controller"] if rows else "")}
+        return {}
+    by_env: dict[str, list[dict]] = {}
+    for r in read_table(path):
+        by_env.setdefault(r["env"], []).append(r)
     model = task_key(cfg)
-    if not rows or any(r["fidelity"] != cfg.fidelity or r.get("model") != model for r in rows) \
-            or envs != want or len(rows) != len(want) * cfg.trials:
-        return None  # another study's evaluation, or one on other scene files: evaluate again
-    return rows
+    return {e: [{**r, "controller": policy} for r in rows] for e, rows in by_env.items()
+            if len(rows) == cfg.trials and all(r["fidelity"] == cfg.fidelity and r.get("model") == model for r in rows)}
 
 
 def task_key(cfg: StudyConfig) -> str:
@@ -306,25 +312,30 @@ def trial(cfg: StudyConfig, policy: str, seed: int) -> list[dict]:
 
     torch.set_num_threads(1)
     run = run_folder(cfg, policy, seed)
-    cached = _read_results(run, cfg)
-    if cached is not None and reportable(run, train_config(cfg, policy, seed).total_timesteps):
+    cached, want = _cached_cells(run, cfg, policy), [e for _, e in _cells(cfg, policy)]
+    if all(e in cached for e in want) and reportable(run, train_config(cfg, policy, seed).total_timesteps):
         validate(cfg, policy, run)
-        return cached
+        return [r for e in want for r in cached[e]]
     run.mkdir(parents=True, exist_ok=True)
     mark = run / RUNNING_MARK
     mark.write_text(f"{socket.gethostname()} {os.getpid()}\n")
     try:
         if not finished(run, train_config(cfg, policy, seed).total_timesteps):
+            cached = {}  # trials of the weights before this training are not this policy's
             letter, variant = split_spec(policy)
             train(letter, cfg.timesteps, seed, out=cfg.runs, config_file=cfg.config, progress=False,
                   variant=variant)
         rows, model = [], task_key(cfg)
-        for _, env in _cells(cfg, policy):
+        for env in want:
+            if env in cached:
+                rows += cached[env]
+                continue
             trials, _ = run_trials(str(run), env, eval_seeds(cfg), fidelity=cfg.fidelity, anatomy=cfg.anatomy,
                                    steps=cfg.trial_steps)
             rows += [{**asdict(t), "controller": policy, "seed_trained": seed, "fidelity": cfg.fidelity,
                       "model": model} for t in trials]
-        write_table(run / results_file(cfg), rows)
+        kept = [r for e, others in cached.items() if e not in want for r in others]  # other studies' cells stay
+        write_table(run / results_file(cfg), rows + kept)
         validate(cfg, policy, run)
         return rows
     finally:
@@ -483,7 +494,11 @@ def analyse(rows: list[dict]) -> tuple[list[dict], list[dict], dict]:
     same_recipe = [(f"{a}-{v}", f"{b}-{v}") for a, b in COMPARISONS for v in recipes
                    if f"{a}-{v}" in names and f"{b}-{v}" in names]
     # A variant against its policy says what its change bought.
-    for a, b in (*COMPARISONS, *same_recipe, *variants):
+    # A letter the study holds only by one recipe, asked the paper's question against the other's (D-paper - B).
+    mixed = [(x, y) for a, b in COMPARISONS for v in recipes
+             for x, y, twin in ((f"{a}-{v}", b, f"{b}-{v}"), (a, f"{b}-{v}", f"{a}-{v}"))
+             if x in names and y in names and twin not in names]
+    for a, b in (*COMPARISONS, *same_recipe, *variants, *mixed):
         for env in CONDITIONS:
             if (a, env) in estimates and (b, env) in estimates:
                 d = stats.difference(estimates[a, env], estimates[b, env])

@@ -291,6 +291,9 @@ def _start_from(cfg: TrainConfig, venv):
     if not (src / MODEL_FILE).exists():
         raise ConfigError(f"init_from {src} holds no {MODEL_FILE}; give a policy folder such as "
                           "models/policies/E or a finished run folder")
+    if artifacts.is_actor_only(src / MODEL_FILE):
+        raise ConfigError(f"init_from {src} is a study seed's evaluation copy (its value function is not stored): "
+                          "start from a shipped policy folder, or train that seed again")
     have, want = artifacts.obs_options(src), obs_options(cfg.task_config())
     if have != want:
         # New blocks must come after all of the source's (widening appends inputs): none dropped, none in between.

@@ -136,7 +136,8 @@ class TrainConfig:
     init_from: str | None = None
     """policy folder to start from (fine-tuning), or None"""
     variant: str | None = None
-    """name of the config's variants entry this run applies to its policy, or None (the paper's policy)"""
+    """name of the config's variants entry this run applies to its policy (its shipped recipe by default), or
+    None (the paper's entry)"""
     curriculum_steps: int = 0
     """steps over which contact-aided targets go from never drawn to drawn as often as the others (0: none)"""
     train_targets: str | None = None
@@ -212,7 +213,8 @@ class TrainConfig:
         self.task_config()
         if self.train_targets is not None:
             if self.backend == "warp":
-                raise ConfigError("train_targets needs the cpu backend (the batched worlds draw the env's list)")
+                raise ConfigError("train_targets needs the cpu backend (the batched worlds draw the env's list): "
+                                  "train this recipe with --backend cpu, or the paper's with --variant paper")
             task_config(env=self.env, fidelity=self.fidelity, target_list=self.train_targets)
 
     def to_dict(self) -> dict:
@@ -313,9 +315,19 @@ def _variant(raw: dict, path: Path, policy: str, variant: str) -> dict:
     return {k: v for k, v in block.items() if k != "policy"}
 
 
+def shipped_variant(policy: str, path: Path) -> str | None:
+    """The variant a letter trains and ships by default (the config's ``shipped``), or None: its paper entry."""
+    raw = read_yaml(path)
+    shipped = raw.get("shipped") or {}
+    if not isinstance(shipped, dict) or not all(isinstance(v, str) for v in shipped.values()):
+        raise ConfigError(f"training config {path}: 'shipped' must map policy letters to variant names")
+    return shipped.get(policy)
+
+
 def load(policy: str, path: Path, variant: str | None = None, **overrides) -> TrainConfig:
     """The resolved, validated config of one policy: defaults, its entry, fine-tuning block, then overrides.
 
+    Without ``variant`` the letter's shipped recipe (:func:`shipped_variant`) applies, if the config names one.
     ``overrides`` are command-line values (None: not given); ``learning_rate``
     goes into the ppo block, ``init_from`` switches on the finetune block.
     """
@@ -326,6 +338,7 @@ def load(policy: str, path: Path, variant: str | None = None, **overrides) -> Tr
     if not isinstance(entry, dict):
         raise ConfigError(f"training config {path} has no entry for policy {policy} under 'policies'")
     merged = _merge(raw.get("defaults") or {}, entry)
+    variant = variant or shipped_variant(policy, path)
     if variant is not None:
         merged = {**_merge(merged, _variant(raw, path, policy, variant)), "variant": variant}
     merged["policy"] = policy

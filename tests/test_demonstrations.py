@@ -64,7 +64,7 @@ def test_the_guide_limit_falls_to_zero_and_only_training_episodes_are_guided():
     cfg = load_config("E", TRAINING_CONFIG, "short-horizon-guided")
     assert cfg.guide_steps == 40 and cfg.guide_decay_steps == 200_000
     assert [guide_limit(cfg, t) for t in (0, 100_000, 200_000, 300_000)] == [40, 20, 0, 0]
-    assert guide_limit(load_config("E", TRAINING_CONFIG), 0) == 0  # the paper's E is never guided
+    assert guide_limit(load_config("E", TRAINING_CONFIG, "paper"), 0) == 0  # the paper's E is never guided
     assert isinstance(make_env(cfg, 0)().env, GuidedStarts)
     assert not isinstance(make_env(load_config("E", TRAINING_CONFIG), 0)().env, GuidedStarts)
     with pytest.raises(ConfigError, match="guide_steps and guide_decay_steps must be >= 0"):

@@ -12,9 +12,10 @@ from scipy.stats import binom
 from mjendo import artifacts
 from mjendo.config import PAPER_ACTION_LIMIT, PAPER_EVAL_STEPS
 from mjendo.envs import EndoscopeEnv
-from mjendo.paths import policies_dir
+from mjendo.paths import TRAINING_CONFIG, policies_dir
 from mjendo.policies import PolicyError, PPOController, force_obs_of, load_controller
 from mjendo.rollout import run
+from mjendo.train_config import shipped_variant
 
 TRAINED_IN = {"A": "FE", "B": "SE", "C": "SE", "D": "DE", "E": "DE"}  # paper: the five policies
 V0 = policies_dir() / "v0"  # the task-version-0 policies: always shipped, so these tests always run
@@ -156,14 +157,45 @@ def test_ship_copies_what_the_run_recorded(tmp_path, monkeypatch, policy_copy):
     # Model, normalisation, meta and config only; the model without the optimizer's moments, and it loads.
     assert {p.name for p in dest.iterdir()} <= {"config.yaml", "meta.json", "model.zip", "vecnormalize.pkl"}
     assert artifacts.load(dest).model.policy is not None
-    # A variant's run ships beside the paper's policy, never over it.
+    # A variant's run ships beside the letter's shipped recipe, never over it; that recipe's runs ship as the letter,
+    # and a run of the paper's entry of a letter that ships another recipe goes beside it as <P>-paper.
     meta["training"]["variant"] = "free-pool"
     (policy_copy / "meta.json").write_text(json.dumps(meta))
     assert artifacts.ship(policy_copy, "E") == tmp_path / "shipped" / "variants" / "E-free-pool"
+    meta["training"]["variant"] = shipped_variant("E", TRAINING_CONFIG)
+    (policy_copy / "meta.json").write_text(json.dumps(meta))
+    assert artifacts.ship(policy_copy, "E") == tmp_path / "shipped" / "E"
+    meta["training"]["variant"] = None
+    (policy_copy / "meta.json").write_text(json.dumps(meta))
+    assert artifacts.home("E", None) == tmp_path / "shipped" / "variants" / "E-paper"
+    assert artifacts.home("A", None) == tmp_path / "shipped" / "A"
     meta["timesteps"] = 0
     (policy_copy / "meta.json").write_text(json.dumps(meta))
     with pytest.raises(PolicyError, match="not a finished run"):
         artifacts.ship(policy_copy, "E")
+
+
+def test_an_evaluation_copy_acts_as_its_policy_in_half_the_bytes(tmp_path):
+    """A study seed that is only evaluated ships without its value function (as do task version 0's policies):
+    same actions, smaller file, and no fine-tune can start from it by mistake."""
+    from mjendo.config import ConfigError
+    from mjendo.train import train
+
+    source, dest = policies_dir() / "E", tmp_path / "copy"
+    dest.mkdir()
+    shutil.copy2(source / "vecnormalize.pkl", dest)
+    shutil.copy2(source / "meta.json", dest)
+    artifacts.slim_copy(source / "model.zip", dest / "model.zip", actor_only=True)
+    assert artifacts.is_actor_only(dest / "model.zip") and not artifacts.is_actor_only(source / "model.zip")
+    assert artifacts.is_actor_only(E0 / "model.zip")
+    assert (dest / "model.zip").stat().st_size < 0.6 * (source / "model.zip").stat().st_size
+    env = EndoscopeEnv("DE", force_obs=True, max_steps=PAPER_EVAL_STEPS)
+    full, copy = load_controller(str(source), env.task), load_controller(str(dest), env.task)
+    obs = np.random.default_rng(0).normal(0.0, 30.0, (64, full.n_obs)).astype(np.float32)
+    assert np.array_equal(full.act(obs, env.task), copy.act(obs, env.task))
+    with pytest.raises(ConfigError, match="evaluation copy"):
+        train("E", timesteps=256, out=tmp_path / "runs", init_from=dest, progress=False, variant="paper",
+              fidelity="fast")
 
 
 def test_a_policy_trained_in_other_scenes_warns_naming_both(policy_copy):

@@ -50,6 +50,7 @@ def tiny_config(tmp_path_factory):
     raw = yaml.safe_load(TRAINING_CONFIG.read_text())
     raw["defaults"].update(checkpoint_every=128, eval_every=512, eval_episodes=1)
     raw["defaults"]["ppo"].update(n_steps=64, batch_size=64, n_epochs=1)
+    raw["shipped"] = {}  # the paper's entries: tiny runs from scratch
     path = tmp_path_factory.mktemp("cfg") / "policies.yaml"
     path.write_text(yaml.safe_dump(raw))
     return path
@@ -122,9 +123,22 @@ def _tiny_grid_checks(cfg, tiny_config, tmp_path, monkeypatch):
     assert "(120 steps," in (tmp_path / "study_120" / "report.md").read_text()
     # ... unless the scene files or the target lists changed since: then they are evaluated again.
     from mjendo import scene
-    from mjendo.study import _read_results
+    from mjendo import study as study_module
+    from mjendo.study import _cached_cells
 
-    assert _read_results(tmp_path / "runs" / "D" / "seed1", cfg) is not None
+    assert set(_cached_cells(run1, cfg, "D")) == {"DE", "UE1"}
+    # A study over one more environment evaluates only that one and keeps the others' trials as they were.
+    evaluated = []
+    real = study_module.run_trials
+    monkeypatch.setattr(study_module, "run_trials",
+                        lambda c, env, *a, **k: evaluated.append(env) or real(c, env, *a, **k))
+    wider = replace(cfg, envs=("DE", "UE1", "UE2"))
+    rows = study_module.trial(wider, "D", 1)
+    assert evaluated == ["UE2"] and sorted({r["env"] for r in rows}) == ["DE", "UE1", "UE2"] and len(rows) == 9
+    assert {(r["env"], r["trial"], r["success"]) for r in rows if r["env"] != "UE2"} == {
+        (r["env"], r["trial"], r["success"]) for r in short.values()}
+    monkeypatch.undo()
+    before = (run1 / "study_trials.csv.gz").stat().st_mtime_ns
     # A trial that fails inside Ray (here an unreadable checkpoint) stops the study with the task's own
     # error, naming the seed; the finished seed keeps its results.
     ckpts = tmp_path / "runs" / "D" / "seed4" / "checkpoints"
@@ -139,10 +153,10 @@ def _tiny_grid_checks(cfg, tiny_config, tmp_path, monkeypatch):
     from mjendo import targets
 
     monkeypatch.setattr(targets, "fingerprint", lambda version=None: "other lists")  # the lists drawn again
-    assert _read_results(tmp_path / "runs" / "D" / "seed1", cfg) is None
+    assert _cached_cells(tmp_path / "runs" / "D" / "seed1", cfg, "D") == {}
     monkeypatch.undo()
     monkeypatch.setattr(scene, "fingerprint", lambda fidelity="fast": "another model")
-    assert _read_results(tmp_path / "runs" / "D" / "seed1", cfg) is None
+    assert _cached_cells(tmp_path / "runs" / "D" / "seed1", cfg, "D") == {}
 
 
 @pytest.mark.integration
@@ -235,6 +249,11 @@ def test_a_variant_is_a_study_entry_of_its_own(tmp_path, monkeypatch):
     found = {c["comparison"]: c["diff_points"] for c in comparisons}
     assert set(found) == {"E - D", "E-randomized - D-randomized", "E-randomized - E", "D-randomized - D"}
     assert found["E-randomized - D-randomized"] == pytest.approx(100.0)
+    # A letter the study holds only as the paper trained it is compared with the other's recipe (D-paper - B).
+    paper = [{**row(100, 5, ok), "controller": c, "env": "DE", "seed_trained": 0, "final_mm": 1.0,
+              "mean_force_n": 0.0} for c, ok in [("B", False), ("D-paper", True), ("E-paper", True)]]
+    found = {c["comparison"]: c["diff_points"] for c in study.analyse(paper)[1]}
+    assert found == {"E-paper - D-paper": 0.0, "D-paper - B": pytest.approx(100.0)}
     # The grid points' rows in another order (Ray's tasks finish in any order): the same estimates and intervals.
     by_point = {}
     for r in rows:

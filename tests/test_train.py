@@ -17,6 +17,7 @@ from mjendo.policies import PolicyError, PPOController, load_controller
 from mjendo.scene import fingerprint
 from mjendo.task import NavigationTask
 from mjendo.train import latest_checkpoint, load_config, run_folder, target_sampler, train
+from mjendo.train_config import shipped_variant
 
 
 @pytest.fixture(scope="module")
@@ -29,7 +30,8 @@ def short_run(tmp_path_factory):
     raw["defaults"].update(checkpoint_every=128, eval_every=256, eval_episodes=1, vec_env="dummy", n_envs=2)
     raw["defaults"]["ppo"].update(n_steps=64, batch_size=64, n_epochs=1)
     cfg_path = out / "policies.yaml"
-    cfg_path.write_text(yaml.safe_dump(raw))
+    cfg_path.write_text(yaml.safe_dump({**raw, "shipped": {}}))  # the paper's entries: runs from scratch
+    (out / "shipped.yaml").write_text(yaml.safe_dump(raw))
     run = train("D", timesteps=256, out=out, config_file=cfg_path)
     resumed = train("D", timesteps=512, out=out, config_file=cfg_path)
     return run, resumed
@@ -110,18 +112,30 @@ def test_a_fine_tune_with_another_discount_uses_it_everywhere(short_run, tmp_pat
 
 
 def test_fine_tune_config_block_applies_only_with_init_from(tmp_path):
-    assert load_config("E", TRAINING_CONFIG).fidelity == "fast"
+    assert load_config("E", TRAINING_CONFIG, "paper").fidelity == "fast"
     ft = load_config("E", TRAINING_CONFIG, init_from="models/policies/E")
     assert ft.fidelity == "full" and ft.ppo.learning_rate == pytest.approx(1e-4)
     assert ft.total_timesteps == 100000 and ft.init_from == "models/policies/E"
 
 
 def test_batched_block_applies_only_with_the_warp_backend():
-    cpu, gpu = load_config("E", TRAINING_CONFIG), load_config("E", TRAINING_CONFIG, backend="warp")
+    cpu, gpu = load_config("E", TRAINING_CONFIG, "paper"), load_config("E", TRAINING_CONFIG, "paper", backend="warp")
+    with pytest.raises(ConfigError, match="train_targets needs the cpu backend.*--variant paper"):
+        load_config("E", TRAINING_CONFIG, backend="warp")  # the shipped recipe draws lists A and F
     assert (cpu.backend, cpu.n_envs, cpu.rollout_size, cpu.eval_every) == ("cpu", 8, 2048, 50000)
     # 4096 worlds fill a 131k-sample rollout: evaluating (in the CPU env) every 50k steps would follow each one
     assert gpu.backend == "warp" and gpu.n_envs == 4096 and gpu.ppo.batch_size == 32768
     assert gpu.eval_every >= 10 * gpu.n_envs * gpu.ppo.n_steps and gpu.checkpoint_every > cpu.checkpoint_every
+
+
+def test_make_train_runs_the_shipped_recipe_from_its_committed_start(short_run):
+    """`make train POLICY=E` on a fresh clone: E continues the committed D start, widened to the force inputs."""
+    out = short_run[0].parent.parent
+    run = train("E", timesteps=128, out=out, config_file=out / "shipped.yaml", progress=False)
+    meta = json.loads((run / "meta.json").read_text())
+    assert run.name == "paired-fast-coarse-seed0-fast-coarse" and meta["timesteps"] == 128
+    assert meta["init_from"] == "models/policies/variants/D-guided-free-pool" and meta["task"]["force_obs"]
+    assert meta["task"]["fidelity"] == "fast-coarse" and meta["training"]["variant"] == "paired-fast-coarse"
 
 
 def test_short_training_writes_a_loadable_policy(short_run):
@@ -294,10 +308,18 @@ def test_a_variant_merges_over_its_policy_and_names_its_run(tmp_path):
     assert cfg.variant == "scope-curriculum" and cfg.curriculum_steps > 0 and cfg.task_config().scope_obs
     assert cfg.task_config().force_obs and cfg.env == "DE"  # E's own entry still applies
     assert run_folder(cfg, tmp_path, None) == tmp_path / "E" / "scope-curriculum-seed0"
-    assert load_config("E", TRAINING_CONFIG).curriculum_steps == 0  # the paper's E has none
+    assert load_config("E", TRAINING_CONFIG, "paper").curriculum_steps == 0  # the paper's E has none
+    # Without --variant a letter trains its shipped recipe (the config's shipped), which is a variant too; the
+    # paper's entry alone is the variant paper; a letter without a shipped recipe trains its entry.
+    shipped = load_config("E", TRAINING_CONFIG)
+    assert shipped.variant == shipped_variant("E", TRAINING_CONFIG) == "paired-fast-coarse"
+    assert shipped.init_from and shipped.total_timesteps == 300_000 and shipped.task_config().force_obs
+    paper = load_config("E", TRAINING_CONFIG, "paper")
+    assert paper.init_from is None and paper.total_timesteps == 1_000_000 and paper.fidelity == "fast"
+    assert load_config("A", TRAINING_CONFIG).variant is None
     with pytest.raises(ConfigError, match="variant scope-curriculum is a variant of policy E, not D"):
         load_config("D", TRAINING_CONFIG, "scope-curriculum")
-    with pytest.raises(ConfigError, match="no variant 'nope'; valid: scope-curriculum"):
+    with pytest.raises(ConfigError, match="no variant 'nope'; valid: paper, scope-curriculum"):
         load_config("E", TRAINING_CONFIG, "nope")
     # A variant of several policies applies to each with its own entry: D stays blind to force.
     d, e = load_config("D", TRAINING_CONFIG, "free-pool"), load_config("E", TRAINING_CONFIG, "free-pool")

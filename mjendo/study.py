@@ -494,10 +494,13 @@ def analyse(rows: list[dict]) -> tuple[list[dict], list[dict], dict]:
     same_recipe = [(f"{a}-{v}", f"{b}-{v}") for a, b in COMPARISONS for v in recipes
                    if f"{a}-{v}" in names and f"{b}-{v}" in names]
     # A variant against its policy says what its change bought.
-    # A letter the study holds only by one recipe, asked the paper's question against the other's (D-paper - B).
+    # A letter the study holds only as one policy, asked the paper's question of the other's recipe (D-paper - B).
+    held = {}
+    for c in names:
+        held.setdefault(split_spec(c)[0], []).append(c)
     mixed = [(x, y) for a, b in COMPARISONS for v in recipes
-             for x, y, twin in ((f"{a}-{v}", b, f"{b}-{v}"), (a, f"{b}-{v}", f"{a}-{v}"))
-             if x in names and y in names and twin not in names]
+             for x, y, only in ((f"{a}-{v}", b, b), (a, f"{b}-{v}", a))
+             if x in names and y in names and held[only] == [only]]
     for a, b in (*COMPARISONS, *same_recipe, *variants, *mixed):
         for env in CONDITIONS:
             if (a, env) in estimates and (b, env) in estimates:

@@ -254,6 +254,9 @@ def test_a_variant_is_a_study_entry_of_its_own(tmp_path, monkeypatch):
               "mean_force_n": 0.0} for c, ok in [("B", False), ("D-paper", True), ("E-paper", True)]]
     found = {c["comparison"]: c["diff_points"] for c in study.analyse(paper)[1]}
     assert found == {"E-paper - D-paper": 0.0, "D-paper - B": pytest.approx(100.0)}
+    # ... but not when it holds that letter by two recipes too: E-randomized - D would say nothing of either.
+    two = paper + [{**r, "controller": c} for r in paper[:1] for c in ("D", "E-randomized")]
+    assert "E-randomized - D" not in {c["comparison"] for c in study.analyse(two)[1]}
     # The grid points' rows in another order (Ray's tasks finish in any order): the same estimates and intervals.
     by_point = {}
     for r in rows:

@@ -258,6 +258,15 @@ def obs_options(directory: Path) -> dict[str, bool]:
     return {k: k == "force_obs" and load(directory).n_obs == obs_size(True) for k in OBS_OPTIONS}
 
 
+def _torch_state(data: bytes) -> dict:
+    """A torch state saved inside an SB3 model.zip (its policy or optimizer member)."""
+    import io
+
+    import torch
+
+    return torch.load(io.BytesIO(data), map_location="cpu", weights_only=False)
+
+
 # The value function's parameters in SB3's ActorCriticPolicy state: acting never reads them.
 VALUE_PARAMS = ("mlp_extractor.value_net.", "value_net.")
 
@@ -272,7 +281,7 @@ def slim_copy(src: Path, dest: Path, actor_only: bool = False) -> None:
     import torch
 
     def rewrite(data: bytes, edit) -> bytes:
-        state = torch.load(io.BytesIO(data), map_location="cpu", weights_only=False)
+        state = _torch_state(data)
         edit(state)
         buf = io.BytesIO()
         torch.save(state, buf)
@@ -296,13 +305,10 @@ def slim_copy(src: Path, dest: Path, actor_only: bool = False) -> None:
 
 def is_actor_only(model: Path) -> bool:
     """Whether a model.zip is an evaluation copy (:func:`slim_copy` ``actor_only``): its value function is zero."""
-    import io
     import zipfile
 
-    import torch
-
     with zipfile.ZipFile(model) as z:
-        state = torch.load(io.BytesIO(z.read("policy.pth")), map_location="cpu", weights_only=False)
+        state = _torch_state(z.read("policy.pth"))
     values = [v for k, v in state.items() if k.startswith(VALUE_PARAMS)]
     return bool(values) and not any(bool(v.any()) for v in values)
 

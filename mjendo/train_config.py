@@ -317,7 +317,10 @@ def _variant(raw: dict, path: Path, policy: str, variant: str) -> dict:
 
 def shipped_variant(policy: str, path: Path) -> str | None:
     """The variant a letter trains and ships by default (the config's ``shipped``), or None: its paper entry."""
-    raw = read_yaml(path)
+    return _shipped(read_yaml(path), path, policy)
+
+
+def _shipped(raw: dict, path: Path, policy: str) -> str | None:
     shipped = raw.get("shipped") or {}
     if not isinstance(shipped, dict) or not all(isinstance(v, str) for v in shipped.values()):
         raise ConfigError(f"training config {path}: 'shipped' must map policy letters to variant names")
@@ -338,7 +341,7 @@ def load(policy: str, path: Path, variant: str | None = None, **overrides) -> Tr
     if not isinstance(entry, dict):
         raise ConfigError(f"training config {path} has no entry for policy {policy} under 'policies'")
     merged = _merge(raw.get("defaults") or {}, entry)
-    variant = variant or shipped_variant(policy, path)
+    variant = variant or _shipped(raw, path, policy)
     if variant is not None:
         merged = {**_merge(merged, _variant(raw, path, policy, variant)), "variant": variant}
     merged["policy"] = policy

@@ -31,7 +31,8 @@ def test_scene_runs_one_second_of_random_control(env, fidelity):
 
 @pytest.mark.parametrize("env,fidelity", [("FE", "fast"), ("SE", "fast"), ("SE", "fast-compliant"), ("DE", "full")])
 def test_committed_scene_is_current(env, fidelity):
-    assert scene.scene_path(env, fidelity).read_text() == scene.scene_xml(env, fidelity)
+    # The text alone: the committed scenes' physics is run below (one second of random control each).
+    assert scene.scene_path(env, fidelity).read_text() == scene.scene_xml(env, fidelity, check=False)
 
 
 def test_one_scene_per_fidelity_plus_fe():

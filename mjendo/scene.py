@@ -280,11 +280,12 @@ def _add_anchors_and_load(spec: mujoco.MjSpec, model: mujoco.MjModel,
     """
     flex_id = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_FLEX, FLEX)
     dofs = flex_joints(model, flex_id)
+    joints = spec.joints  # a fresh list of every joint per access: read it once
     for j in dofs:
         body = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, model.jnt_bodyid[j])
         axis = "xyz"[int(np.argmax(np.abs(model.jnt_axis[j])))]
-        spec.joints[j].name = f"{body}_{axis}"
-    names = [spec.joints[j].name for j in dofs]
+        joints[j].name = f"{body}_{axis}"
+    names = [joints[j].name for j in dofs]
     # Rayleigh alpha, damping proportional to each flex dof's mass, as the damping of a passive
     # actuator per dof (no gain, so ctrl does nothing): MuJoCo refuses joint damping on flex bodies.
     # The elastic foundation (Material.foundation_per_s2) is the same actuator's spring to the rest position.

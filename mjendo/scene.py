@@ -169,15 +169,15 @@ def probe(model: mujoco.MjModel, settle_s: float = 0.5) -> None:
     too soft a wall as a stomach that collapses under gravity (settled without
     contact), a wall in the scope's way as one the retracting scope strikes.
     """
-    sag = _settle(model, settle_s, contact=False)
-    if not np.isfinite(sag) or sag > MAX_SETTLE_SAG_M:
+    sag = _settle(model, settle_s, contact=True)
+    if np.isfinite(sag) and sag <= MAX_SETTLE_SAG_M:
+        return
+    if not _settle(model, settle_s, contact=False) <= MAX_SETTLE_SAG_M:  # only a failure settles twice
         raise ConfigError(f"the stomach collapses under gravity (wall moved {float(to_mm(sag)):.0f} mm while "
                           "settling): raise young or lower the density")
-    sag = _settle(model, settle_s, contact=True)
-    if not np.isfinite(sag) or sag > MAX_SETTLE_SAG_M:
-        raise ConfigError(f"the wall moved {float(to_mm(sag)):.0f} mm while settling, struck by the scope as it "
-                          "retracts to its shallowest insertion: at this fidelity the wall lies in the scope's path "
-                          "at the cardia; use a finer fidelity (fast) or move the stomach's entry")
+    raise ConfigError(f"the wall moved {float(to_mm(sag)):.0f} mm while settling, struck by the scope as it "
+                      "retracts to its shallowest insertion: at this fidelity the wall lies in the scope's path "
+                      "at the cardia; use a finer fidelity (fast) or move the stomach's entry")
 
 
 def _settle(model: mujoco.MjModel, settle_s: float, contact: bool) -> float:

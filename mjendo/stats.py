@@ -67,22 +67,44 @@ def difference(a: dict, b: dict) -> dict:
     return {"mean": a["mean"] - b["mean"], "low": lo, "high": hi, "excludes_zero": bool(lo > 0 or hi < 0)}
 
 
-def crossed(tables: Sequence[np.ndarray], reps: int = REPS, rng: np.random.Generator | None = None) -> list[np.ndarray]:
+def crossed(tables: Sequence[np.ndarray], reps: int = REPS, rng: np.random.Generator | None = None,
+            groups: Sequence | None = None) -> list[np.ndarray]:
     """Bootstrap replicates resampling training seeds and targets, for several policies at once.
 
     Each table is (seeds, targets): a policy's success rate per training seed and target (over its trials
     there). Every replicate draws targets with replacement once, shared by all tables (the policies are
     compared on the same targets), and each table's seeds independently; the statistic is the mean over
     drawn seeds and drawn targets. Returns one replicate array per table.
+
+    ``groups`` (one label per target: its stomach) makes the target draw two-stage, as a cluster bootstrap:
+    stomachs with replacement, then within each drawn stomach its targets. Targets of one stomach succeed and
+    fail together, so the question "on other stomachs" needs the stomachs resampled, not only their points.
     """
     rng = rng or np.random.default_rng(0)
     n_targets = {t.shape[1] for t in tables}
     if len(n_targets) != 1:
         raise ValueError("every table must cover the same targets")
+    if groups is not None:
+        return _clustered(tables, np.asarray(groups), reps, rng)
     targets = rng.integers(0, n_targets.pop(), (reps, tables[0].shape[1]))
     out = []
     for t in tables:
         seeds = rng.integers(0, t.shape[0], (reps, t.shape[0]))
         by_target = t[:, None, :][seeds[:, :, None], 0, targets[:, None, :]]  # (reps, seeds, targets)
         out.append(by_target.mean(axis=(1, 2)))
+    return out
+
+
+def _clustered(tables: Sequence[np.ndarray], groups: np.ndarray, reps: int, rng: np.random.Generator) -> list:
+    """:func:`crossed` with targets drawn stomach by stomach (the drawn stomachs' own target counts)."""
+    if len(groups) != tables[0].shape[1]:
+        raise ValueError("groups must label every target column")
+    members = [np.flatnonzero(groups == g) for g in dict.fromkeys(groups.tolist())]
+    seeds = [rng.integers(0, t.shape[0], (reps, t.shape[0])) for t in tables]
+    out = [np.empty(reps) for _ in tables]
+    for r in range(reps):
+        drawn = (members[k] for k in rng.integers(0, len(members), len(members)))
+        cols = np.concatenate([m[rng.integers(0, len(m), len(m))] for m in drawn])
+        for t, s, o in zip(tables, seeds, out, strict=True):
+            o[r] = t[s[r]][:, cols].mean()
     return out

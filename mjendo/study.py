@@ -510,26 +510,51 @@ def analyse(rows: list[dict]) -> tuple[list[dict], list[dict], dict]:
                                     "low": 100 * d["low"], "high": 100 * d["high"],
                                     "supported": d["excludes_zero"], "low_targets": lo, "high_targets": hi,
                                     "supported_targets": bool(lo > 0 or hi < 0)})
+    if any(_stomachs([_target(t)]) for by_seed in per_cell.values() for ts in by_seed.values() for t in ts[:1]):
+        spread = np.random.default_rng(1)  # its own stream: the intervals above stay as they were
+        for row, by_seed in zip(summary, per_cell.values(), strict=True):
+            row["sr_low_stomachs"], row["sr_high_stomachs"] = over_stomachs(by_seed, spread)
     return summary, comparisons, {k: v for k, v in per_cell.items()}
 
 
 def _over_targets(a: dict[int, list[dict]], b: dict[int, list[dict]], rng) -> tuple[float, float]:
-    """95 % interval (points) of a - b resampling training seeds and targets (the targets both were tried on).
+    """95 % interval (points) of a - b resampling training seeds and targets (the targets both were tried on),
+    and in a set of stomachs the stomachs too.
 
     The generalisation question asks about other targets as much as other seeds: each replicate draws the
     targets once for both policies and each policy's seeds independently (stats.crossed).
     """
-    def table(by_seed: dict[int, list[dict]], targets: list) -> np.ndarray:
-        return np.array([[np.mean([_bool(t["success"]) for t in by_seed[s] if _target(t) == k] or [np.nan])
-                          for k in targets] for s in sorted(by_seed)])
-
     common = sorted({_target(t) for ts in a.values() for t in ts} & {_target(t) for ts in b.values() for t in ts})
-    ta, tb = table(a, common), table(b, common)
+    ta, tb = _target_table(a, common), _target_table(b, common)
     keep = ~(np.isnan(ta).any(0) | np.isnan(tb).any(0))  # targets every seed of both was tried on
     if not keep.any():
         return float("nan"), float("nan")
-    ra, rb = stats.crossed([ta[:, keep], tb[:, keep]], rng=rng)
+    kept = [common[i] for i in np.flatnonzero(keep)]
+    ra, rb = stats.crossed([ta[:, keep], tb[:, keep]], rng=rng, groups=_stomachs(kept))
     lo, hi = stats.interval(ra - rb)
+    return 100 * lo, 100 * hi
+
+
+def _target_table(by_seed: dict[int, list[dict]], targets: list) -> np.ndarray:
+    """(seeds, targets): each training seed's success rate on each target (NaN where it was not tried)."""
+    return np.array([[np.mean([_bool(t["success"]) for t in by_seed[s] if _target(t) == k] or [np.nan])
+                      for k in targets] for s in sorted(by_seed)])
+
+
+def _stomachs(targets: list[tuple[str, int]]) -> list[str] | None:
+    """Each target's stomach, to resample stomachs as well; None for the built-in stomach alone."""
+    labels = [stomach for stomach, _ in targets]
+    return labels if any(labels) else None
+
+
+def over_stomachs(by_seed: dict[int, list[dict]], rng) -> tuple[float, float]:
+    """95 % interval (points) of a policy's success in a set of stomachs, resampling training seeds, the
+    stomachs and each stomach's targets (the targets every seed was tried on)."""
+    targets = sorted({_target(t) for ts in by_seed.values() for t in ts})
+    table = _target_table(by_seed, targets)
+    keep = ~np.isnan(table).any(0)
+    reps, = stats.crossed([table[:, keep]], rng=rng, groups=_stomachs([targets[i] for i in np.flatnonzero(keep)]))
+    lo, hi = stats.interval(reps)
     return 100 * lo, 100 * hi
 
 
@@ -691,15 +716,22 @@ def write_outputs(cfg: StudyConfig, rows: list[dict], command: str, wall_s: floa
     if stomachs:
         _csv(out / "per_anatomy.csv", stomachs)
         names = list(dict.fromkeys(r["anatomy"] for r in stomachs))
-        lines += ["", "## Per stomach", "", "Success % in each stomach, pooled over seeds (per_anatomy.csv).", "",
-                  "| policy | env | " + " | ".join(names) + " |", "|---|---|" + "---|" * len(names)]
+        spread = {(r["policy"], r["env"]): r for r in summary}
+        lines += ["", "## Per stomach", "", "Success % in each stomach, pooled over seeds (per_anatomy.csv), and in "
+                  "all of them with the 95 % interval over seeds, stomachs and targets (a cluster bootstrap: the "
+                  "stomachs drawn with replacement, then each drawn stomach's targets; summary.csv's "
+                  "sr_low_stomachs and sr_high_stomachs): what another draw of stomachs may give.", "",
+                  "| policy | env | all (95 % CI) | " + " | ".join(names) + " |", "|---|---|---|" + "---|" * len(names)]
         for pol, env in dict.fromkeys((r["policy"], r["env"]) for r in stomachs):
             sr = {r["anatomy"]: r["success_pct"] for r in stomachs if (r["policy"], r["env"]) == (pol, env)}
-            lines.append(f"| {pol} | {env} | " + " | ".join(f"{sr[a]:.0f}" for a in names) + " |")
+            row = spread[pol, env]
+            lines.append(f"| {pol} | {env} | {row['sr']:.1f} ({row['sr_low_stomachs']:.1f}-"
+                         f"{row['sr_high_stomachs']:.1f}) | " + " | ".join(f"{sr[a]:.0f}" for a in names) + " |")
     if comparisons:
         lines += ["", "## The paper's comparisons", "",
                   "| comparison | env | difference, points | 95 % CI over seeds and trials | excludes 0 | "
-                  "95 % CI over seeds and targets | excludes 0 |", "|---|---|---|---|---|---|---|"]
+                  f"95 % CI over seeds{' and' if cfg.anatomy is None else ', stomachs and'} targets | excludes 0 |",
+                  "|---|---|---|---|---|---|---|"]
         for c in comparisons:
             lines.append(f"| {c['comparison']} | {c['env']} | {c['diff_points']:+.1f} | {c['low']:+.1f} to "
                          f"{c['high']:+.1f} | {'yes' if c['supported'] else 'no'} | {c['low_targets']:+.1f} to "

@@ -45,6 +45,23 @@ def test_continuous_metrics_bootstrap_too():
     assert est["mean"] == 3.0 and est["low"] == 2.0 and est["high"] == 4.0
 
 
+def test_resampling_stomachs_widens_the_interval_when_their_targets_succeed_together():
+    # Ten stomachs of ten targets each, two seeds alike: five stomachs where every target succeeds, five where
+    # none does. Resampling the 100 targets alone sees 100 independent points (half-width about 10 points);
+    # resampling the stomachs sees ten (about 30). Each target its own stomach is the plain target bootstrap.
+    table = np.repeat(np.repeat([1.0, 0.0], 50)[None], 2, axis=0)
+    stomachs = np.repeat(np.arange(10), 10)
+    flat, = stats.crossed([table], rng=np.random.default_rng(0))
+    clustered, = stats.crossed([table], rng=np.random.default_rng(0), groups=stomachs)
+    single, = stats.crossed([table], rng=np.random.default_rng(0), groups=np.arange(100))
+    widths = [np.subtract(*stats.interval(r)[::-1]) for r in (flat, clustered, single)]
+    assert np.mean(clustered) == pytest.approx(0.5, abs=0.01)
+    assert widths[0] == pytest.approx(0.2, abs=0.03) and widths[1] > 2.5 * widths[0], widths
+    assert widths[2] == pytest.approx(widths[0], abs=0.03), widths
+    with pytest.raises(ValueError, match="groups must label every target"):
+        stats.crossed([table], groups=stomachs[:10])
+
+
 @pytest.fixture(scope="module")
 def tiny_config(tmp_path_factory):
     raw = yaml.safe_load(TRAINING_CONFIG.read_text())
@@ -234,8 +251,11 @@ def test_a_variant_is_a_study_entry_of_its_own(tmp_path, monkeypatch):
     rows = [{**row(a, 5, ok), "controller": c, "env": "DE", "seed_trained": 0, "final_mm": 1.0,
              "mean_force_n": 0.0} for c, a, ok in [("E", 100, True), ("E", 101, False),
                                                      ("E-randomized", 100, True), ("E-randomized", 101, True)]]
-    _, comparisons, per_cell = study.analyse(rows)
+    summary, comparisons, per_cell = study.analyse(rows)
     assert [c["comparison"] for c in comparisons] == ["E-randomized - E"]
+    # E succeeds in one stomach of two: drawing the stomachs gives 0, 50 or 100 %; E-randomized always 100 %.
+    spread = {r["policy"]: (r["sr_low_stomachs"], r["sr_high_stomachs"]) for r in summary}
+    assert spread == {"E": (0.0, 100.0), "E-randomized": (100.0, 100.0)}
     by_target = {(t["policy"], t["anatomy"], t["target"]): t["success_pct"] for t in study.per_target_rows(per_cell)}
     assert by_target[("E", "100", 5)] == 100.0 and by_target[("E", "101", 5)] == 0.0
     by_stomach = {(r["policy"], r["anatomy"]): r["success_pct"] for r in study.per_stomach_rows(per_cell)}

@@ -401,15 +401,15 @@ def _listed_aided(list_name: str, path: Path) -> tuple[dict, list[int]]:
     return points, [i for i in meta["lists"][list_name] if points[i]["class"] == "contact_aided"]
 
 
-def _starts(fidelity: str, list_name: str, phases: int = PHASES, env: str = "DE"):
+def _starts(fidelity: str, list_name: str, phases: int = PHASES, env: str = "DE", anatomy_id=None):
     """The trial starts every contact-aided point must be reached from: SE, then ``phases`` evenly spaced load
-    phases of ``env`` (the map's 4 of DE, or more to look between them, or a stronger load); yields the task,
-    the start state (None: the only one) and a label."""
+    phases of ``env`` (the map's 4 of DE, or more to look between them, or a stronger load), in the built-in
+    stomach or ``anatomy_id``'s; yields the task, the start state (None: the only one) and a label."""
     from mjendo.task import NavigationTask
 
     for name, phase in [("SE", None)] + [(env, p) for p in range(phases)]:
         task = NavigationTask(env=name, target_list=list_name, max_steps=10**6, randomize_phase=False,
-                              fidelity=fidelity)
+                              fidelity=fidelity, anatomy=anatomy_id)
         start = None if phase is None else phase * len(task.start_states) // phases
         yield task, start, name if phase is None else f"{name} phase {phase}/{phases}"
 
@@ -428,31 +428,37 @@ def recorded_demos(list_name: str, path: Path = TARGETS_FILE) -> list[int]:
     return sorted({d for i in listed for d in points[i]["demos"]})
 
 
-def arrival_steps(list_name: str, path: Path = TARGETS_FILE, fidelity: str = "fast") -> dict[int, list[int | None]]:
+def stomach_map(anatomy_id=None) -> Path:
+    """The target map of the built-in stomach (None), a generated one (its seed) or a user's (its folder)."""
+    return map_path(anatomy.stomach_dir(anatomy_id))
+
+
+def arrival_steps(list_name: str, path: Path | None = None, fidelity: str = "fast",
+                  anatomy_id=None) -> dict[int, list[int | None]]:
     """Step (1-80) at which each listed contact-aided point's recorded demonstrator first comes within the
     success distance, in SE and from each DE load phase (None: not within the trial). The recorded one is
     the demonstrator that came closest, not necessarily the fastest: an upper bound on the time a known
     way there needs, so on how little slack a policy has. In the full stomach (the map is measured in the
     fast one) the same motions show whether, and when, the FEM wall lets the tube get there too."""
-    points, listed = _listed_aided(list_name, path)
+    points, listed = _listed_aided(list_name, path or stomach_map(anatomy_id))
     steps: dict[int, list[int | None]] = {i: [] for i in listed}
-    for run, (task, start, where) in enumerate(_starts(fidelity, list_name)):
+    for run, (task, start, where) in enumerate(_starts(fidelity, list_name, anatomy_id=anatomy_id)):
         for i in listed:
             steps[i].append(replay_demo(task, DEMOS[points[i]["demos"][run]], i, start)[0])
         print(f"  {fidelity} {where}: {len(listed)} demonstrators replayed ({run + 1}/{1 + PHASES})", flush=True)
     return steps
 
 
-def fastest_arrivals(list_name: str, path: Path = TARGETS_FILE, demos: list[int] | None = None,
-                     phases: int = PHASES, env: str = "DE") -> dict[int, list[int | None]]:
+def fastest_arrivals(list_name: str, path: Path | None = None, demos: list[int] | None = None,
+                     phases: int = PHASES, env: str = "DE", anatomy_id=None) -> dict[int, list[int | None]]:
     """Like :func:`arrival_steps`, but the earliest arrival over every demonstrator of ``demos`` (indices
     into DEMOS; None: all 180), not the recorded one's: the fastest known way to each point from SE and each
     of ``phases`` starts of ``env`` (DE, or UE1 and UE2's stronger loads). The target is not physical, so
     one replay per demonstrator and start measures every listed point."""
-    points, listed = _listed_aided(list_name, path)
+    points, listed = _listed_aided(list_name, path or stomach_map(anatomy_id))
     demos = list(range(len(DEMOS))) if demos is None else demos
     steps: dict[int, list[int | None]] = {i: [] for i in listed}
-    for run, (task, start, where) in enumerate(_starts("fast", list_name, phases, env)):
+    for run, (task, start, where) in enumerate(_starts("fast", list_name, phases, env, anatomy_id)):
         rows = np.array([int(np.flatnonzero(task.targets == i)[0]) for i in listed])
         first = np.full(len(listed), TRIAL_STEPS + 1)
         for d in demos:
@@ -494,11 +500,11 @@ def success_by_slack(latest: dict[int, int | None], per_target: Path) -> str:
 
 
 def _slack_report(list_name: str, fidelity: str, fastest: bool = False, per_target: Path | None = None,
-                  phases: int = PHASES, demos: list[int] | None = None, env: str = "DE") -> str:
+                  phases: int = PHASES, demos: list[int] | None = None, env: str = "DE", anatomy_id=None) -> str:
     """``slack``'s summary; for the full stomach also each trial's arrival against the fast stomach's; from
     more start phases than the map's, how many (target, start) pairs a known way reaches at all."""
-    steps = fastest_arrivals(list_name, demos=demos, phases=phases, env=env) if fastest \
-        else arrival_steps(list_name, fidelity=fidelity)
+    steps = fastest_arrivals(list_name, demos=demos, phases=phases, env=env, anatomy_id=anatomy_id) if fastest \
+        else arrival_steps(list_name, fidelity=fidelity, anatomy_id=anatomy_id)
     latest = {i: max(s) if None not in s else None for i, s in steps.items()}
     arrived = np.array([s for s in latest.values() if s is not None])
     which = ("fastest of all demonstrators" if demos is None else f"fastest of {len(demos)} demonstrators") \
@@ -515,7 +521,7 @@ def _slack_report(list_name: str, fidelity: str, fastest: bool = False, per_targ
                      f"{reached.size}; {env} starts only: {reached[:, 1:].mean():.1%}; targets missed from some start: "
                      f"{(~reached).any(axis=1).sum()}")
     if fidelity != "fast":
-        fast = arrival_steps(list_name)
+        fast = arrival_steps(list_name, anatomy_id=anatomy_id)
         pairs = [(a, b) for i in steps for a, b in zip(fast[i], steps[i], strict=True) if a is not None]
         late = np.array([b - a for a, b in pairs if b is not None])
         line = (f"the same motions, {len(pairs)} trials that arrive in the fast stomach: {len(late)} arrive within "
@@ -527,6 +533,58 @@ def _slack_report(list_name: str, fidelity: str, fastest: bool = False, per_targ
     if per_target is not None:
         lines.append(success_by_slack(latest, per_target))
     return "\n".join(lines)
+
+
+def known_way_ceiling(list_name: str, anatomy_id=None, phases: int = 8, env: str = "DE",
+                      path: Path | None = None) -> dict:
+    """How much of a stomach's list a known way reaches within a trial: its recorded demonstrators raced, the
+    fastest kept, from ``phases`` starts of ``env`` for each contact-aided target; free targets counted as
+    reached (free space brings the tip within 3 mm of them). The ceiling is the share of (target, start) pairs
+    over the list, each target weighed as an evaluation tries them: equally."""
+    path = path or stomach_map(anatomy_id)
+    meta = read_map(path)
+    points = {p["id"]: p for p in meta["points"]}
+    listed = meta["lists"][list_name]
+    steps = fastest_arrivals(list_name, path, recorded_demos(list_name, path), phases, env, anatomy_id)
+    reached = {i: np.mean([a is not None for a in s[1:]]) for i, s in steps.items()}  # the moving stomach's starts
+    latest = [max(s[1:]) for s in steps.values() if None not in s[1:]]
+    return {"targets": len(listed), "contact_aided": len(steps),
+            "free": sum(points[i]["class"] == "free" for i in listed),
+            "pairs_reached": float(np.mean(list(reached.values()))) if reached else 1.0,
+            "missed_somewhere": sum(r < 1 for r in reached.values()),
+            "median_latest": float(np.median(latest)) if latest else None,
+            "ceiling": float(np.mean([reached.get(i, 1.0) for i in listed]))}
+
+
+def print_ceilings(list_name: str, anatomies: list, phases: int, env: str, per_anatomy: Path | None) -> None:
+    """``slack --ceiling``: each stomach's known-way ceiling as it is measured, beside a study's success there
+    (its per_anatomy.csv), then how the two go together across stomachs."""
+    import csv
+
+    success: dict[str, dict[str, float]] = {}
+    if per_anatomy is not None:
+        with open(per_anatomy) as f:
+            for r in csv.DictReader(f):
+                if r["env"] == env:
+                    success.setdefault(r["policy"], {})[r["anatomy"]] = float(r["success_pct"])
+    print(f"list {list_name}, {env}, {phases} start phases: stomach, targets (contact-aided), (target, start) pairs "
+          "a known way reaches, contact-aided targets missed from some start, median latest arrival, ceiling of "
+          "the list" + "".join(f", {p} success" for p in success), flush=True)
+    ceilings = {}
+    for a in anatomies:
+        c = known_way_ceiling(list_name, a, phases, env)
+        ceilings[str(a)] = c["ceiling"]
+        median = "-" if c["median_latest"] is None else f"{c['median_latest']:.0f}"
+        print(f"  {a}: {c['targets']} ({c['contact_aided']}), {c['pairs_reached']:.1%}, {c['missed_somewhere']}, "
+              f"step {median}, {c['ceiling']:.1%}" +
+              "".join(f", {per.get(str(a), float('nan')):.1f} %" for per in success.values()), flush=True)
+    print(f"  mean ceiling {np.mean(list(ceilings.values())):.1%}")
+    for policy, per in success.items():
+        both = [(ceilings[a], per[a]) for a in ceilings if a in per]
+        if len(both) > 2:
+            x, y = np.array(both).T
+            print(f"  {policy}: correlation of success with the ceiling across {len(both)} stomachs "
+                  f"{np.corrcoef(x, y)[0, 1]:+.2f}")
 
 
 def open_loop(list_name: str, env: str = "DE", phases: int = 8, hold_load: bool = False,
@@ -735,6 +793,12 @@ def main(argv: list[str] | None = None) -> int:
                     "whose phases to start from (the map checked DE)")
     sl.add_argument("--recorded-demos", action="store_true", help="with --fastest, race only the demonstrators "
                     "the map recorded for the list's targets instead of all 180")
+    sl.add_argument("--anatomy", type=anatomy_arg, help="another stomach (a generated one's seed or a built "
+                    f"folder), or with --ceiling a benchmark set ({', '.join(ANATOMY_SETS)})")
+    sl.add_argument("--ceiling", action="store_true", help="per stomach, the share of the list a known way "
+                    "reaches within a trial from --phases starts (its recorded demonstrators raced)")
+    sl.add_argument("--per-anatomy", type=Path, help="with --ceiling, a study's per_anatomy.csv: its success "
+                    "per stomach beside the ceiling")
     ol = sub.add_parser("open-loop", help="each listed contact-aided target's static-stomach demonstrator replayed "
                         "unchanged from phases of the moving stomach: does the plan survive the wall's motion")
     ol.add_argument("--list", default="A", choices=("A", "B"))
@@ -752,21 +816,31 @@ def main(argv: list[str] | None = None) -> int:
             print(f"wrote {figure(args.out)}")
             return
         if args.cmd == "slack":
+            from mjendo.task import PHASES_PER_CYCLE
+
             if args.fastest and args.fidelity != "fast":
                 raise ConfigError("--fastest replays the demonstrators in the fast stomach, where the map "
                                   "measured them: drop --fidelity full or --fastest")
-            if args.per_target is not None and not args.per_target.is_file():
-                raise ConfigError(f"{args.per_target} does not exist: give the per_target.csv a study wrote "
-                                  "(python -m mjendo.study ... --out DIR writes DIR/per_target.csv)")
+            for given, name in ((args.per_target, "per_target.csv"), (args.per_anatomy, "per_anatomy.csv")):
+                if given is not None and not given.is_file():
+                    raise ConfigError(f"{given} does not exist: give the {name} a study wrote "
+                                      f"(python -m mjendo.study ... --out DIR writes DIR/{name})")
+            if not 1 <= args.phases <= PHASES_PER_CYCLE:
+                raise ConfigError(f"--phases {args.phases}: give 1 to {PHASES_PER_CYCLE} start phases per load cycle")
+            if args.ceiling:
+                print_ceilings(args.list, anatomy.members(args.anatomy), args.phases, args.env, args.per_anatomy)
+                return
+            if isinstance(args.anatomy, str) and args.anatomy in ANATOMY_SETS:
+                raise ConfigError(f"--anatomy {args.anatomy} is a set of stomachs: add --ceiling for a line per "
+                                  "stomach, or give one stomach's seed")
+            if args.per_anatomy is not None:
+                raise ConfigError("--per-anatomy goes with --ceiling (success per stomach beside its ceiling)")
             if not args.fastest and (args.phases != PHASES or args.recorded_demos or args.env != "DE"):
                 raise ConfigError(f"the map recorded a demonstrator for {PHASES} DE phases only: add --fastest to "
                                   "race demonstrators from other phases, loads or a subset of them")
-            from mjendo.task import PHASES_PER_CYCLE
-
-            if not 1 <= args.phases <= PHASES_PER_CYCLE:
-                raise ConfigError(f"--phases {args.phases}: give 1 to {PHASES_PER_CYCLE} start phases per load cycle")
-            print(_slack_report(args.list, args.fidelity, args.fastest, args.per_target, args.phases,
-                                recorded_demos(args.list) if args.recorded_demos else None, args.env))
+            demos = recorded_demos(args.list, stomach_map(args.anatomy)) if args.recorded_demos else None
+            print(_slack_report(args.list, args.fidelity, args.fastest, args.per_target, args.phases, demos,
+                                args.env, args.anatomy))
             return
         if args.cmd == "open-loop":
             closest = open_loop(args.list, args.env, args.phases, args.hold_load)

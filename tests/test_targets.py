@@ -157,12 +157,13 @@ def test_slack_report_compares_the_full_stomach_trial_by_trial_even_when_nothing
     # The full stomach may bring no motion in within the trial: the report must say so, not fail on an empty median.
     fast = {1: [60, 61, 62, 63, 64], 2: [70, 71, 72, 73, 74]}
     full = {1: [None, 63, None, 65, 64], 2: [None] * 5}
-    monkeypatch.setattr(targets, "arrival_steps", lambda name, fidelity="fast": full if fidelity == "full" else fast)
+    monkeypatch.setattr(targets, "arrival_steps", lambda name, fidelity="fast", **_: full if fidelity == "full"
+                        else fast)
     report = targets._slack_report("A", "full")
     assert "by step 80 at 0" in report and "10 trials that arrive in the fast stomach: 3 arrive" in report
     assert "+2 steps later" in report  # median of (63-61, 65-63, 64-64) = median(2, 2, 0)
-    monkeypatch.setattr(targets, "arrival_steps", lambda name, fidelity="fast": {1: [None] * 5} if fidelity == "full"
-                        else {1: fast[1]})
+    monkeypatch.setattr(targets, "arrival_steps", lambda name, fidelity="fast", **_: {1: [None] * 5}
+                        if fidelity == "full" else {1: fast[1]})
     assert targets._slack_report("A", "full").endswith("5 trials that arrive in the fast stomach: 0 arrive within "
                                                        "the trial in the full one")
 
@@ -185,6 +186,24 @@ def test_the_fastest_known_way_is_never_later_than_the_recorded_one_and_more_pha
     (_, eight), = targets.fastest_arrivals("A", path, demos=demos, phases=8).items()
     assert len(eight) == 1 + 8 and eight[0] == four[0] and eight[1::2] == four[1:], (four, eight)
     assert all(s is None or 30 <= s <= targets.TRIAL_STEPS for s in eight[2::2]), eight
+
+
+def test_the_known_way_ceiling_counts_free_targets_and_each_start_a_raced_demonstrator_reaches(tmp_path, capsys):
+    # List A cut to one free and one contact-aided target, raced from DE's phase 0 alone: the map's own start,
+    # from which the map found the contact-aided target reached, so the ceiling is the whole list. A set of
+    # stomachs without --ceiling, and --per-anatomy without it, are refused with what to add.
+    meta = targets.read_map(targets.TARGETS_FILE)
+    free = next(i for i in meta["lists"]["A"] if POINTS[i]["class"] == "free")
+    meta["lists"]["A"] = [free, aided("A")[0]]
+    path = tmp_path / "targets.json"
+    path.write_text(json.dumps(meta))
+    c = targets.known_way_ceiling("A", phases=1, path=path)
+    assert (c["targets"], c["free"], c["contact_aided"], c["missed_somewhere"]) == (2, 1, 1, 0), c
+    assert c["pairs_reached"] == 1.0 and c["ceiling"] == 1.0 and 30 <= c["median_latest"] <= targets.TRIAL_STEPS
+    assert targets.main(["slack", "--anatomy", "test"]) == 2
+    assert "is a set of stomachs: add --ceiling" in capsys.readouterr().err
+    assert targets.main(["slack", "--per-anatomy", str(path)]) == 2
+    assert "--per-anatomy goes with --ceiling" in capsys.readouterr().err
 
 
 def test_success_by_slack_weighs_each_target_by_its_trials(tmp_path):

@@ -570,21 +570,21 @@ def print_ceilings(list_name: str, anatomies: list, phases: int, env: str, per_a
     print(f"list {list_name}, {env}, {phases} start phases: stomach, targets (contact-aided), (target, start) pairs "
           "a known way reaches, contact-aided targets missed from some start, median latest arrival, ceiling of "
           "the list" + "".join(f", {p} success" for p in success), flush=True)
-    ceilings = {}
+    ceilings, latest = {}, {}
     for a in anatomies:
         c = known_way_ceiling(list_name, a, phases, env)
-        ceilings[str(a)] = c["ceiling"]
+        ceilings[str(a)], latest[str(a)] = c["ceiling"], c["median_latest"]
         median = "-" if c["median_latest"] is None else f"{c['median_latest']:.0f}"
         print(f"  {a}: {c['targets']} ({c['contact_aided']}), {c['pairs_reached']:.1%}, {c['missed_somewhere']}, "
               f"step {median}, {c['ceiling']:.1%}" +
               "".join(f", {per.get(str(a), float('nan')):.1f} %" for per in success.values()), flush=True)
     print(f"  mean ceiling {np.mean(list(ceilings.values())):.1%}")
-    for policy, per in success.items():
-        both = [(ceilings[a], per[a]) for a in ceilings if a in per]
+    for policy, per in success.items():  # which stomachs are hard: those a known way barely reaches, or late
+        both = [(ceilings[a], latest[a], per[a]) for a in ceilings if a in per and latest[a] is not None]
         if len(both) > 2:
-            x, y = np.array(both).T
-            print(f"  {policy}: correlation of success with the ceiling across {len(both)} stomachs "
-                  f"{np.corrcoef(x, y)[0, 1]:+.2f}")
+            x, t, y = np.array(both).T
+            print(f"  {policy}: correlation of success across {len(both)} stomachs with the ceiling "
+                  f"{np.corrcoef(x, y)[0, 1]:+.2f}, with the median latest arrival {np.corrcoef(t, y)[0, 1]:+.2f}")
 
 
 def open_loop(list_name: str, env: str = "DE", phases: int = 8, hold_load: bool = False,

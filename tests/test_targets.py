@@ -206,6 +206,24 @@ def test_the_known_way_ceiling_counts_free_targets_and_each_start_a_raced_demons
     assert "--per-anatomy goes with --ceiling" in capsys.readouterr().err
 
 
+def test_ceilings_set_each_stomachs_success_beside_its_ceiling_and_latest_arrival(monkeypatch, tmp_path, capsys):
+    # Three stomachs whose known ways arrive later and later, and a policy that succeeds less the later they
+    # do: the report lines them up per stomach and gives the correlations across stomachs.
+    fake = {1: (1.0, 58.0), 2: (0.98, 63.0), 3: (0.95, 68.0)}
+    monkeypatch.setattr(targets, "known_way_ceiling", lambda name, a, phases, env: {
+        "targets": 30, "contact_aided": 20, "pairs_reached": fake[a][0], "missed_somewhere": 0,
+        "median_latest": fake[a][1], "ceiling": fake[a][0]})
+    csv = tmp_path / "per_anatomy.csv"
+    csv.write_text("policy,env,anatomy,trials,success_pct\nE,DE,1,20,90.0\nE,DE,2,20,80.0\nE,DE,3,20,60.0\n"
+                   "E,UE2,1,20,10.0\n")
+    targets.print_ceilings("A", [1, 2, 3], 8, "DE", csv)
+    out = capsys.readouterr().out.splitlines()
+    assert out[1] == "  1: 30 (20), 100.0%, 0, step 58, 100.0%, 90.0 %"
+    assert out[3].startswith("  3: 30 (20), 95.0%") and out[3].endswith("step 68, 95.0%, 60.0 %")
+    ceiling, latest = (float(part.split(" ")[-1]) for part in out[-1].split(", "))
+    assert ceiling > 0.9 and latest < -0.9 and out[-1].startswith("  E: correlation of success across 3 stomachs")
+
+
 def test_success_by_slack_weighs_each_target_by_its_trials(tmp_path):
     # Success is pooled over the trials of the targets in each bin of latest arrival; targets outside the list
     # are ignored, and a file about other targets is refused with what to give instead.

@@ -67,7 +67,7 @@ def scene_path(env: str, fidelity: str = "fast", version: int = CURRENT_VERSION,
         path.parent.mkdir(parents=True, exist_ok=True)
         cfg = scene_config(env, fidelity, version)
         spec = build_spec(cfg, anatomy.load(stomach), stomach)
-        probe(spec.compile())
+        probe(spec.compile(), fidelity=cfg.fidelity.name)
         tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp")
         tmp.write_text(spec.to_xml())
         tmp.replace(path)  # whole or not at all: parallel builders may race
@@ -161,7 +161,7 @@ def validate(cfg: SceneConfig) -> None:
 MAX_SETTLE_SAG_M = 0.03
 
 
-def probe(model: mujoco.MjModel, settle_s: float = 0.5) -> None:
+def probe(model: mujoco.MjModel, settle_s: float = 0.5, fidelity: str = "this fidelity") -> None:
     """Settle the stomach briefly; reject parameters that make the physics unusable.
 
     MuJoCo's discrete integrator does not blow up on stiff flexes: too stiff a
@@ -176,8 +176,9 @@ def probe(model: mujoco.MjModel, settle_s: float = 0.5) -> None:
         raise ConfigError(f"the stomach collapses under gravity (wall moved {float(to_mm(sag)):.0f} mm while "
                           "settling): raise young or lower the density")
     raise ConfigError(f"the wall moved {float(to_mm(sag)):.0f} mm while settling, struck by the scope as it "
-                      "retracts to its shallowest insertion: at this fidelity the wall lies in the scope's path "
-                      "at the cardia; use a finer fidelity (fast) or move the stomach's entry")
+                      f"retracts to its shallowest insertion: at {fidelity} the wall lies in the scope's path at "
+                      "the cardia; use a finer fidelity (coarse to fine: fast-coarse, fast, full) or move the "
+                      "stomach's entry")
 
 
 def _settle(model: mujoco.MjModel, settle_s: float, contact: bool) -> float:
@@ -327,7 +328,7 @@ def scene_xml(env: str, fidelity: str | Fidelity = "fast", check: bool = True, v
     cfg = scene_config(env, fidelity, version, **overrides)
     spec = build_spec(cfg)
     if check:
-        probe(spec.compile())
+        probe(spec.compile(), fidelity=cfg.fidelity.name)
     return spec.to_xml()
 
 

@@ -84,7 +84,7 @@ def test_a_trilinear_grid_without_a_load_calibration_is_refused(monkeypatch):
     assert fidelity_preset("fast").load_gains == pytest.approx((2.85, 2.91, 2.98))
 
 
-def test_unusable_physics_parameters_are_rejected_with_the_fix():
+def test_unusable_physics_parameters_are_rejected_with_the_fix(tmp_path, monkeypatch):
     # With the presets' 1000 iterations the M + hD + h^2 K solve converges even at 1 TPa; an
     # iteration cap too low for a stiff wall is what leaves it under-converged.
     starved = replace(FIDELITIES["full"], iterations=5)
@@ -95,10 +95,11 @@ def test_unusable_physics_parameters_are_rejected_with_the_fix():
     with pytest.raises(ConfigError, match="poisson"):
         scene.build_spec(scene_config("DE", material=Material(poisson=0.5)))
     # One trilinear cell cannot follow training stomach 0's cardia: the retracting scope strikes the wall
-    # there (70-80 mm transients), which is not a sag under gravity and gets its own fix.
+    # there (70-80 mm transients), which is not a sag under gravity and gets its own fix, naming the fidelity.
     stomach0 = anatomy.anatomy_dir(0)
-    with pytest.raises(ConfigError, match="struck by the scope.*use a finer fidelity"):
-        scene.probe(scene.build_spec(scene_config("SE", "fast-coarse"), anatomy.load(stomach0), stomach0).compile())
+    monkeypatch.setattr(scene.paths, "CACHE", tmp_path)  # built here, not found in a cache
+    with pytest.raises(ConfigError, match="struck by the scope.*at fast-coarse the wall.*use a finer fidelity"):
+        scene.scene_path("SE", "fast-coarse", stomach=stomach0)
     scene.probe(scene.build_spec(scene_config("SE", "fast"), anatomy.load(stomach0), stomach0).compile())
     with pytest.raises(ConfigError, match="unknown solver 'PGS'; valid: CG, Newton"):
         scene.build_spec(scene_config("DE", replace(FIDELITIES["fast"], solver="PGS")))

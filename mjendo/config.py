@@ -85,9 +85,13 @@ class AnatomyRanges:
     cardia_arclength_mm: tuple[float, float] = (8.0, 18.0)  # how far below the fundus dome the cardia opens
 
 
-# The anatomy benchmark: generated stomachs (anatomy.generate) to train on and disjoint ones to test on,
-# drawn per episode by `anatomy="train"` / `anatomy="test"`. The seeds are published so results compare.
-ANATOMY_SETS: dict[str, tuple[int, ...]] = {"train": tuple(range(0, 20)), "test": tuple(range(100, 110))}
+# The anatomy benchmark: generated stomachs (anatomy.generate) to train on, disjoint ones to choose seeds and
+# checkpoints on ("val"), and disjoint ones to test on, drawn per episode by `anatomy="train"` / "val" / "test".
+# The seeds are published so results compare. Stomach 204 is left out of "val": in the fast stomach the
+# retracting scope strikes its wall at the cardia (scene.probe refuses it), so it has no map.
+ANATOMY_SETS: dict[str, tuple[int, ...]] = {"train": tuple(range(0, 20)),
+                                            "val": (200, 201, 202, 203, 205, 206, 207, 208, 209, 210),
+                                            "test": tuple(range(100, 110))}
 
 
 @dataclass(frozen=True)

@@ -113,6 +113,9 @@ class StudyConfig:
     timesteps: int | None = None  # None: each policy's budget in the training config
     trials: int = 200  # evaluation trials per environment and seed
     validation_trials: int = 100  # per seed, in the training condition: picks the seed to ship
+    # Stomachs the validation trials run in instead of the training condition's (its env still): "val", disjoint
+    # from the training and test stomachs, picks the seed that generalises without looking at the test set.
+    validation_anatomy: int | str | None = None
     fidelity: str = "fast"  # stomach the final policies are evaluated in
     envs: tuple[str, ...] | None = None  # None: the evaluation study's environments
     anatomy: int | str | None = None  # stomachs evaluated in (TaskConfig.anatomy): None the built-in one
@@ -152,8 +155,12 @@ class StudyConfig:
             raise ConfigError("--cpus-per-trial must be > 0 and --gpus-per-trial >= 0")
         for p in self.policies:
             train_config(self, p, 0)  # unknown variants and bad configs stop here, named
-        if self.anatomy is not None:
-            task_config(anatomy=self.anatomy)
+        for where in (self.anatomy, self.validation_anatomy):
+            if where is not None:
+                task_config(anatomy=where)
+        if self.validation_anatomy is not None and self.validation_anatomy == self.anatomy:
+            raise ConfigError(f"--validation-anatomy {self.validation_anatomy} is the set the study evaluates in: "
+                              "pick the seed on other stomachs (val) than those it reports (test)")
 
 
 def train_config(cfg: StudyConfig, spec: str, seed: int):
@@ -343,12 +350,12 @@ def trial(cfg: StudyConfig, policy: str, seed: int) -> list[dict]:
 
 
 def validate(cfg: StudyConfig, policy: str, run: Path) -> dict:
-    """Success rate and mean error on the validation trials in the training condition, its stomachs included
-    (cached in the run)."""
-    path = run / per_stomach(VALIDATION_FILE, cfg.fidelity)
+    """Success rate and mean error on the validation trials in the training condition, its stomachs included,
+    or in ``cfg.validation_anatomy``'s stomachs (cached in the run)."""
+    path = run / per_stomach(VALIDATION_FILE, cfg.fidelity, cfg.validation_anatomy)
     tc = train_config(cfg, policy, 0)
-    trained_in = tc.task_config().anatomy
-    model = task_key(replace(cfg, anatomy=trained_in))
+    where = tc.task_config().anatomy if cfg.validation_anatomy is None else cfg.validation_anatomy
+    model = task_key(replace(cfg, anatomy=where))
     if path.exists():
         cached = json.loads(path.read_text())
         if (cached.get("fidelity"), cached.get("model"), cached.get("trials")) == (cfg.fidelity, model,
@@ -359,7 +366,7 @@ def validate(cfg: StudyConfig, policy: str, run: Path) -> dict:
                           "trials this study asks for: study it with the validation trials it was published "
                           "with (--validation-trials), or delete the folder to train the seed again")
     seeds = [VALIDATION_SEED + i for i in range(cfg.validation_trials)]
-    trials, _ = run_trials(str(run), tc.env, seeds, fidelity=cfg.fidelity, anatomy=trained_in)
+    trials, _ = run_trials(str(run), tc.env, seeds, fidelity=cfg.fidelity, anatomy=where)
     result = {"env": tc.env, "fidelity": cfg.fidelity, "model": model, "trials": len(trials),
               "first_seed": VALIDATION_SEED,
               "success_rate": float(np.mean([t.success for t in trials])),
@@ -740,7 +747,9 @@ def write_outputs(cfg: StudyConfig, rows: list[dict], command: str, wall_s: floa
                   "with these seeds and trials."]
     best = best_seeds(cfg)
     lines += ["", "## Validation: which seed is shipped", "",
-              f"{cfg.validation_trials} trials per seed in the policy's training condition, on seeds "
+              f"{cfg.validation_trials} trials per seed in the policy's training condition"
+              + ("" if cfg.validation_anatomy is None else f" (its env) in anatomy `{cfg.validation_anatomy}`")
+              + ", on seeds "
               f"{VALIDATION_SEED}.. (disjoint from the evaluation trials above).", "",
               "| policy | seed | validation SR % | final error mm | best |", "|---|---|---|---|---|"]
     for p in cfg.policies:
@@ -797,6 +806,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--trials", type=int, default=200, help="evaluation trials per environment and seed")
     ap.add_argument("--validation-trials", type=int, default=100,
                     help="trials per seed in the training condition that pick the seed to ship")
+    ap.add_argument("--validation-anatomy", type=targets.anatomy_arg,
+                    help="run the validation trials in these stomachs (val: disjoint from training and test)")
     ap.add_argument("--fidelity", choices=list(FIDELITIES), default="fast", help="stomach to evaluate in")
     ap.add_argument("--envs", help="comma-separated subset of FE, SE, DE, UE1, UE2")
     ap.add_argument("--anatomy", type=targets.anatomy_arg,
@@ -816,7 +827,8 @@ def main(argv: list[str] | None = None) -> int:
     a = ap.parse_args(argv)
     cfg = StudyConfig(policies=tuple(a.policies.split(",")), seeds=a.seeds, seeds_for=tuple(a.seeds_for),
                       timesteps=a.timesteps,
-                      trials=a.trials, validation_trials=a.validation_trials, fidelity=a.fidelity,
+                      trials=a.trials, validation_trials=a.validation_trials,
+                      validation_anatomy=a.validation_anatomy, fidelity=a.fidelity,
                       envs=tuple(a.envs.split(",")) if a.envs else None, anatomy=a.anatomy,
                       trial_steps=a.trial_steps, config=a.config,
                       runs=a.runs, out=a.out,

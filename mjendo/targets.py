@@ -96,7 +96,7 @@ class TargetTable:
 
 def map_path(stomach: Path) -> Path:
     """The target map of a stomach's folder: targets.json, or the gzip-compressed targets.json.gz that the
-    committed stomachs keep (thirty-one maps in git, 7x smaller)."""
+    committed stomachs keep (one per benchmark stomach, 7x smaller)."""
     plain = Path(stomach) / MAP_NAME
     packed = plain.with_name(plain.name + ".gz")
     return packed if packed.exists() and not plain.exists() else plain

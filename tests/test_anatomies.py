@@ -151,7 +151,7 @@ def test_the_committed_benchmark_stomachs_are_what_the_generator_builds(tmp_path
     # Each committed stomach's map indexes its mesh's triangles: a generator that changed would leave
     # maps measured on other stomachs (measure them again: python -m mjendo.targets map --anatomy SEED).
     committed = sorted(paths.ANATOMIES_DIR.glob("seed-*"))
-    # The benchmark is whole: every stomach of both sets committed with its map.
+    # The benchmark is whole: every stomach of every set committed with its map.
     for name, seeds in ANATOMY_SETS.items():
         missing = [k for k in seeds if not targets.map_path(paths.ANATOMIES_DIR / f"seed-{k}").exists()]
         assert not missing, f"{name} stomachs {missing} have no map: python -m mjendo.targets map --anatomy {name}"

@@ -229,6 +229,33 @@ def test_each_stomach_keeps_its_own_study_cache():
     assert per_stomach(RESULTS_FILE, "fast", None, 80) == "study_trials.csv.gz"  # the paper's length
 
 
+def test_validation_can_pick_the_seed_on_stomachs_of_its_own(tmp_path, monkeypatch):
+    # --validation-anatomy val runs a seed's validation trials in those stomachs (E's env, DE) and caches them
+    # apart from the training condition's; validating on the very set the study reports is refused.
+    from types import SimpleNamespace
+
+    from mjendo import study as study_module
+    from mjendo.study import StudyConfig
+
+    run = tmp_path / "E" / "seed4"
+    shutil.copytree("models/policies/E", run)
+    asked = []
+
+    def fake_trials(run_dir, env, seeds, fidelity, anatomy):
+        asked.append((env, anatomy, len(seeds)))
+        return [SimpleNamespace(success=i % 4 != 0, final_mm=2.0) for i in range(len(seeds))], None
+
+    monkeypatch.setattr(study_module, "run_trials", fake_trials)
+    held_out = study_module.validate(StudyConfig(policies=("E",), validation_trials=8, anatomy="test",
+                                                 validation_anatomy="val"), "E", run)
+    own = study_module.validate(StudyConfig(policies=("E",), validation_trials=8), "E", run)
+    assert asked == [("DE", "val", 8), ("DE", None, 8)]
+    assert held_out["success_rate"] == own["success_rate"] == 0.75
+    assert (run / "study_validation_val.json").exists() and (run / "study_validation.json").exists()
+    with pytest.raises(ConfigError, match="pick the seed on other stomachs"):
+        StudyConfig(policies=("E",), anatomy="test", validation_anatomy="test").check()
+
+
 def test_a_variant_is_a_study_entry_of_its_own(tmp_path, monkeypatch):
     # E-randomized trains as E's variant, lives beside the paper's policies, and is compared with plain E.
     from mjendo import study

@@ -583,8 +583,9 @@ def print_ceilings(list_name: str, anatomies: list, phases: int, env: str, per_a
         both = [(ceilings[a], latest[a], per[a]) for a in ceilings if a in per and latest[a] is not None]
         if len(both) > 2:
             x, t, y = np.array(both).T
-            print(f"  {policy}: correlation of success across {len(both)} stomachs with the ceiling "
-                  f"{np.corrcoef(x, y)[0, 1]:+.2f}, with the median latest arrival {np.corrcoef(t, y)[0, 1]:+.2f}")
+            with_ceiling = f"{np.corrcoef(x, y)[0, 1]:+.2f}" if np.ptp(x) > 0 else "- (every ceiling equal)"
+            print(f"  {policy}: correlation of success across {len(both)} stomachs with the ceiling {with_ceiling}, "
+                  f"with the median latest arrival {np.corrcoef(t, y)[0, 1]:+.2f}")
 
 
 def open_loop(list_name: str, env: str = "DE", phases: int = 8, hold_load: bool = False,

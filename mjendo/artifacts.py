@@ -366,8 +366,41 @@ def _last_evaluation(run: Path) -> dict | None:
             "mean_final_mm": float(last["mean_final_mm"])}
 
 
+def comparison(a: Path, b: Path) -> dict[str, bool]:
+    """Whether two policy folders agree, part by part, on what decides how they act: the task, the actor's weights,
+    the value function (where both keep one) and the normalisation; all True when a retrained run reproduces a
+    published policy bit for bit."""
+    import torch
+
+    pa, pb = load(a), load(b)
+    sa, sb = pa.model.policy.state_dict(), pb.model.policy.state_dict()
+
+    def same(keys) -> bool:
+        return all(k in sb and sa[k].shape == sb[k].shape and torch.equal(sa[k], sb[k]) for k in keys)
+
+    out = {"task": trained_task(pa.meta) == trained_task(pb.meta),
+           "actor weights": sa.keys() == sb.keys() and same(k for k in sa if not k.startswith(VALUE_PARAMS))}
+    if not any(is_actor_only(model_home(d) / MODEL_FILE) for d in (a, b)):
+        out["value function"] = same(k for k in sa if k.startswith(VALUE_PARAMS))
+    ra, rb = pa.obs_rms, pb.obs_rms
+    out["normalisation"] = (ra is None and rb is None) or (ra is not None and rb is not None and np.array_equal(
+        ra.mean, rb.mean) and np.array_equal(ra.var, rb.var))
+    return out
+
+
+def _compare(a: Path, b: Path) -> int:
+    parts = comparison(a, b)
+    differ = [k for k, same in parts.items() if not same]
+    if differ:
+        print(f"{a} and {b} differ: {', '.join(differ)}")
+        return 1
+    print(f"{a} and {b} are the same policy, bit for bit: {', '.join(parts)}")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
-    """``python -m mjendo.artifacts ship RUN POLICY`` (``make ship``): copy a finished run's policy."""
+    """``python -m mjendo.artifacts ship RUN POLICY`` (``make ship``): copy a finished run's policy;
+    ``compare RUN FOLDER``: whether a retrained run reproduced a published policy (exit status 1 if not)."""
     import argparse
 
     from mjendo import cli
@@ -377,7 +410,15 @@ def main(argv: list[str] | None = None) -> int:
     s = sub.add_parser("ship", help="copy a finished run to models/policies/<POLICY>/")
     s.add_argument("run", type=Path, help="run folder, e.g. runs/E/seed0")
     s.add_argument("policy", choices=POLICY_NAMES)
+    c = sub.add_parser("compare", help="whether two policy folders act alike bit for bit (a retrain and its "
+                       "published seed)")
+    c.add_argument("run", type=Path, help="a policy folder, e.g. runs/E/paired-fast-coarse-seed4-fast-coarse")
+    c.add_argument("folder", type=Path, help="another, e.g. models/policies/E/seeds/seed4")
     a = ap.parse_args(argv)
+    if a.cmd == "compare":
+        status = []
+        code = cli.run(lambda: status.append(_compare(a.run, a.folder)), PolicyError)
+        return code or status[0]
     return cli.run(lambda: print(f"shipped {a.run} to {ship(a.run, a.policy)}"), PolicyError)
 
 

@@ -220,3 +220,34 @@ def test_a_policy_trained_on_other_target_lists_warns_naming_both(policy_copy):
     with pytest.warns(RuntimeWarning, match=f"trained on target lists ba9876543210, the installed target lists are "
                                             f"{targets.fingerprint(version)}: the targets were drawn again"):
         artifacts.load(policy_copy)
+
+
+def test_compare_tells_a_reproduced_policy_from_a_changed_one(tmp_path):
+    """`python -m mjendo.artifacts compare`: a retrained seed that matches its published folder bit for bit, and what
+    it names when one weight or one normalisation statistic differs."""
+    source = policies_dir() / "E"
+    copy, slim = tmp_path / "copy", tmp_path / "slim"
+    shutil.copytree(source, copy, ignore=shutil.ignore_patterns("seeds"))
+    slim.mkdir()
+    for name in ("vecnormalize.pkl", "meta.json"):
+        shutil.copy2(source / name, slim / name)
+    artifacts.slim_copy(source / "model.zip", slim / "model.zip", actor_only=True)
+    assert artifacts.comparison(source, copy) == dict.fromkeys(
+        ("task", "actor weights", "value function", "normalisation"), True)
+    assert artifacts.main(["compare", str(source), str(copy)]) == 0
+    # An evaluation copy has no value function to compare: the rest still matches.
+    assert artifacts.comparison(copy, slim) == dict.fromkeys(("task", "actor weights", "normalisation"), True)
+    from stable_baselines3 import PPO
+
+    model = PPO.load(str(copy / "model.zip"), device="cpu")
+    with __import__("torch").no_grad():
+        model.policy.action_net.bias[0] += 1e-6
+    model.save(str(copy / "model.zip"))
+    vn = pickle.loads((copy / "vecnormalize.pkl").read_bytes())
+    vn.obs_rms.var[3] *= 1.0 + 1e-9
+    vn.venv, vn.class_attributes, vn.returns = None, {}, None  # what VecNormalize holds back when pickled
+    (copy / "vecnormalize.pkl").write_bytes(pickle.dumps(vn))
+    parts = artifacts.comparison(source, copy)
+    assert not parts["actor weights"] and not parts["normalisation"] and parts["value function"] and parts["task"]
+    assert artifacts.main(["compare", str(source), str(copy)]) == 1
+    assert artifacts.main(["compare", str(source), str(tmp_path / "missing")]) == 2  # the one-line error

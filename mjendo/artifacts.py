@@ -378,7 +378,8 @@ def comparison(a: Path, b: Path) -> dict[str, bool]:
     def same(keys) -> bool:
         return all(k in sb and sa[k].shape == sb[k].shape and torch.equal(sa[k], sb[k]) for k in keys)
 
-    out = {"task": trained_task(pa.meta) == trained_task(pb.meta),
+    # Resolved, so that a meta written before a task option existed equals one that records the option's default.
+    out = {"task": task_config(**trained_task(pa.meta)) == task_config(**trained_task(pb.meta)),
            "actor weights": sa.keys() == sb.keys() and same(k for k in sa if not k.startswith(VALUE_PARAMS))}
     if not any(is_actor_only(model_home(d) / MODEL_FILE) for d in (a, b)):
         out["value function"] = same(k for k in sa if k.startswith(VALUE_PARAMS))

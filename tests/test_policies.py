@@ -235,8 +235,15 @@ def test_compare_tells_a_reproduced_policy_from_a_changed_one(tmp_path):
     assert artifacts.comparison(source, copy) == dict.fromkeys(
         ("task", "actor weights", "value function", "normalisation"), True)
     assert artifacts.main(["compare", str(source), str(copy)]) == 0
-    # An evaluation copy has no value function to compare: the rest still matches.
+    # An evaluation copy has no value function to compare: the rest still matches, also when its meta was written
+    # before a task option existed (it records no value: the default); a changed task option is a difference.
+    meta = json.loads((slim / "meta.json").read_text())
+    older = {**meta, "task": {k: v for k, v in meta["task"].items() if k not in ("time_obs", "success_mm")}}
+    (slim / "meta.json").write_text(json.dumps(older))
     assert artifacts.comparison(copy, slim) == dict.fromkeys(("task", "actor weights", "normalisation"), True)
+    (slim / "meta.json").write_text(json.dumps({**meta, "task": {**meta["task"], "success_mm": 2.0}}))
+    assert not artifacts.comparison(copy, slim)["task"]
+    (slim / "meta.json").write_text(json.dumps(meta))
     from stable_baselines3 import PPO
 
     model = PPO.load(str(copy / "model.zip"), device="cpu")

@@ -334,6 +334,13 @@ class Randomization:
     # (docs/physics.md "Under a policy's own motions"), so the range covers that model error. None: the
     # scene's own impedance (the default).
     wall_compliance: tuple[float, float] | None = None
+    # Actuation error: each step the executed cable and insertion increments differ from the commanded ones
+    # by this relative standard deviation, drawn per increment. Tendon-sheath drives of flexible endoscopes
+    # transmit cable motion with friction, slack and backlash (Do et al. 2014, Mechatronics 24: 12), and a
+    # policy whose steps land only under exact kinematics loses trials to about 1 mm of model error
+    # (docs/physics.md "Under a policy's own motions"). A training lever, not a calibration: 0 (the
+    # default) executes every command exactly.
+    actuation_noise: float = 0.0
 
     # Any of these set to None keeps the scene's value instead of drawing one.
     RANGES = ("young_scale", "damping_scale", "load_scale", "half_period_s", "friction", "wall_compliance")
@@ -352,7 +359,7 @@ class Randomization:
                 raise ConfigError(f"randomization {name} must be None or a range (low, high) with {bounds}, "
                                   f"not {r!r}")
         for name, hi in (("load_tilt_deg", 90.0), ("force_noise_n", math.inf), ("target_noise_mm", math.inf),
-                         ("settle_s", math.inf)):
+                         ("settle_s", math.inf), ("actuation_noise", 1.0)):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int | float) or not 0 <= v <= hi:
                 raise ConfigError(f"randomization {name} must be a number in [0, {hi:g}], not {v!r}")

@@ -282,10 +282,11 @@ class NavigationTask:
     def step(self, action) -> StepResult:
         a = self.clip_action(action)
         sim = self.sim
+        done = a * self._actuation_gains()
         lim = sim.cable_pull_max
-        self.pulls = np.minimum(np.maximum(self.pulls + a[:4] * self.cable_step, -lim), lim)
+        self.pulls = np.minimum(np.maximum(self.pulls + done[:4] * self.cable_step, -lim), lim)
         lo, hi = sim.insertion_range
-        self.insertion = min(max(self.insertion + a[4] * self.insertion_step, lo), hi)
+        self.insertion = min(max(self.insertion + done[4] * self.insertion_step, lo), hi)
         self.prev_axial = float(a[4])
         sim.set_controls(self.pulls, self.insertion)
         instability = None
@@ -321,6 +322,13 @@ class NavigationTask:
             info["instability"] = instability
         return StepResult(self.observation(out["delta"]), float(out["reward"]), bool(out["terminated"]),
                           bool(out["truncated"]), info)
+
+    def _actuation_gains(self) -> np.ndarray:
+        """Executed over commanded increment, per channel: 1 unless the randomization draws actuation error."""
+        r = self.cfg.randomization
+        if r is None or r.actuation_noise == 0:
+            return np.ones(ACTION_SIZE)
+        return 1.0 + self._noise.normal(0.0, r.actuation_noise, ACTION_SIZE)
 
     # ---------------------------------------------------------- observation
     def observation(self, delta: np.ndarray | None = None) -> np.ndarray:

@@ -159,10 +159,37 @@ def test_sensor_noise_is_in_the_observation_not_in_the_reward():
     np.testing.assert_allclose(obs[:3], true_delta, atol=1e-3)
 
 
+def test_actuation_noise_scatters_the_executed_steps_about_the_commanded_ones():
+    only = {name: None for name in Randomization.RANGES} | {"load_tilt_deg": 0.0, "force_noise_n": 0.0,
+                                                           "target_noise_mm": 0.0, "settle_s": 0.0}
+    command = np.array([0.3, -0.2, 0.0, 0.1, 0.4])
+    executed = {}
+    for noise in (0.0, 0.2):
+        env = EndoscopeEnv(env="SE", max_steps=40, randomize_phase=False,
+                           randomization=only | {"actuation_noise": noise})
+        env.reset(seed=3)
+        steps, tips = [], []
+        for _ in range(30):
+            pulls, insertion = env.task.pulls.copy(), env.task.insertion
+            env.step(command)
+            steps.append(np.r_[(env.task.pulls - pulls) / env.task.cable_step,
+                               (env.task.insertion - insertion) / env.task.insertion_step])
+            tips.append(env.task.sim.tip_pos().copy())
+        executed[noise] = (np.array(steps), np.array(tips))
+    exact, noisy = executed[0.0][0], executed[0.2][0]
+    np.testing.assert_allclose(exact, np.broadcast_to(command, exact.shape), atol=1e-12)
+    moved = command != 0  # a zero command stays zero: the error is relative to the commanded step
+    ratio = noisy[:, moved] / command[moved]
+    assert 0.1 < ratio.std() < 0.3 and abs(ratio.mean() - 1.0) < 0.1
+    np.testing.assert_array_equal(noisy[:, ~moved], 0.0)
+    assert np.linalg.norm(executed[0.2][1][-1] - executed[0.0][1][-1]) > 1e-3  # the tip goes elsewhere
+
+
 @pytest.mark.parametrize("bad, word", [({"young_scale": (2.0, 1.0)}, "young_scale"),
                                        ({"friction": (-0.1, 0.2)}, "friction"),
                                        ({"wall_compliance": (0.5, 1.5)}, "wall_compliance"),
                                        ({"load_tilt_deg": 120.0}, "load_tilt_deg"),
+                                       ({"actuation_noise": -0.1}, "actuation_noise"),
                                        ({"stiffness": (1, 2)}, "unknown randomization"),
                                        ("yes", "randomization must be")])
 def test_bad_randomization_names_the_field(bad, word):

@@ -171,7 +171,8 @@ def test_actuation_noise_scatters_the_executed_steps_about_the_commanded_ones():
         steps, tips = [], []
         for _ in range(30):
             pulls, insertion = env.task.pulls.copy(), env.task.insertion
-            env.step(command)
+            obs, *_ = env.step(command)
+            assert obs[10] == pytest.approx(command[4])  # the policy observes what it commanded
             steps.append(np.r_[(env.task.pulls - pulls) / env.task.cable_step,
                                (env.task.insertion - insertion) / env.task.insertion_step])
             tips.append(env.task.sim.tip_pos().copy())

@@ -142,9 +142,9 @@ class BatchedNavigation:
         if self.cfg.randomization is not None:
             raise ConfigError("randomization (per-episode tissue, load and noise) is not available in the batched "
                               "backend: train such a policy with --backend cpu")
-        if self.cfg.scope_obs or self.cfg.time_obs or self.cfg.phase_obs:
-            raise ConfigError("scope_obs, time_obs and phase_obs are not available in the batched backend: train such "
-                              "a policy with --backend cpu")
+        if self.cfg.scope_obs or self.cfg.time_obs or self.cfg.phase_obs or self.cfg.step_obs:
+            raise ConfigError("scope_obs, time_obs, phase_obs and step_obs are not available in the batched backend: "
+                              "train such a policy with --backend cpu")
         self.core = NavigationTask(self.cfg)  # the MDP's constants: start states, targets, frame, scales
         core, m = self.core, self.core.sim.model
         self.wp_device = device or ("cuda:0" if wp.is_cuda_available() else "cpu")

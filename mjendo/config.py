@@ -582,6 +582,10 @@ class TaskConfig:
     # ventilator; respiratory gating, Keall et al. 2006, AAPM TG-76, Med. Phys. 33: 3874). A policy that sees
     # the wall only through the target vector and the force cannot tell how long the wall will stay where it is.
     phase_obs: bool = False
+    # What the last control step did: the four cable actions it commanded (the insertion one is observed already) and
+    # the tip's displacement over it. A memoryless policy then sees how far its last command moved the tip, the
+    # local gain of its actions, which the wall's give changes from stomach to stomach (not the paper's).
+    step_obs: bool = False
     target_list: str | None = None  # None: the environment's own list (A or B); "A+F": lists joined
     max_steps: int = PAPER_TRAIN_STEPS
     version: int = CURRENT_VERSION  # task version (VERSIONS): scope, gravity, time scales, targets
@@ -636,7 +640,7 @@ def task_config(**kw) -> TaskConfig:
     ver = task_version(int(cfg.version))
     cfg = replace(cfg, version=int(cfg.version), **{k: getattr(ver, k) for k in ACTION_SCALES
                                                     if getattr(cfg, k) is None})
-    for name in ("force_obs", "scope_obs", "time_obs", "phase_obs", "randomize_phase"):
+    for name in ("force_obs", "scope_obs", "time_obs", "phase_obs", "step_obs", "randomize_phase"):
         if not isinstance(getattr(cfg, name), bool | np.bool_):
             raise ConfigError(f"{name} must be True or False, not {getattr(cfg, name)!r}")
     parts = cfg.target_list.split("+") if isinstance(cfg.target_list, str) else [cfg.target_list]
@@ -654,7 +658,7 @@ def task_config(**kw) -> TaskConfig:
     if cfg.anatomy is not None:
         _anatomy(cfg)
     cfg = replace(cfg, force_obs=bool(cfg.force_obs), scope_obs=bool(cfg.scope_obs), time_obs=bool(cfg.time_obs),
-                  phase_obs=bool(cfg.phase_obs), randomize_phase=bool(cfg.randomize_phase),
+                  phase_obs=bool(cfg.phase_obs), step_obs=bool(cfg.step_obs), randomize_phase=bool(cfg.randomize_phase),
                   max_steps=int(cfg.max_steps))
     substeps(cfg)
     return cfg

@@ -43,8 +43,10 @@ SCOPE_BLOCKS = [("insertion", 1, "mm", (-100.0, 300.0)), ("tip_position", 3, "mm
                 ("tip_axis", 3, "unit vector", (-1.0, 1.0))]
 TIME_BLOCKS = [("time_left", 1, "share of max_steps", (0.0, 1.0))]
 PHASE_BLOCKS = [("load_phase", 2, "sin, cos of the breathing cycle's phase", (-1.0, 1.0))]
+STEP_BLOCKS = [("previous_cable_actions", 4, "action units", (-PAPER_ACTION_LIMIT, PAPER_ACTION_LIMIT)),
+               ("tip_step", 3, "mm", (-1000.0, 1000.0))]
 # The task options that add observation blocks, in the order their blocks follow the paper's.
-OBS_OPTIONS = ("force_obs", "scope_obs", "time_obs", "phase_obs")
+OBS_OPTIONS = ("force_obs", "scope_obs", "time_obs", "phase_obs", "step_obs")
 SETTLE_S = 1.0  # the stomach settles under gravity (and load) before episodes start
 # Start states are snapshots of the stomach in its periodic steady state, this
 # many per load cycle (every 50 ms of a 4 s cycle): an episode starts at its
@@ -60,13 +62,14 @@ ACTION_SCALE_FIELDS = ("control_period_s", "cable_mm_per_unit", "insertion_mm_pe
 
 
 def obs_blocks(force_obs: bool, scope_obs: bool = False, time_obs: bool = False,
-               phase_obs: bool = False) -> list[tuple]:
+               phase_obs: bool = False, step_obs: bool = False) -> list[tuple]:
     return OBS_BLOCKS + (FORCE_BLOCKS if force_obs else []) + (SCOPE_BLOCKS if scope_obs else []) \
-        + (TIME_BLOCKS if time_obs else []) + (PHASE_BLOCKS if phase_obs else [])
+        + (TIME_BLOCKS if time_obs else []) + (PHASE_BLOCKS if phase_obs else []) + (STEP_BLOCKS if step_obs else [])
 
 
-def obs_size(force_obs: bool, scope_obs: bool = False, time_obs: bool = False, phase_obs: bool = False) -> int:
-    return sum(b[1] for b in obs_blocks(force_obs, scope_obs, time_obs, phase_obs))
+def obs_size(force_obs: bool, scope_obs: bool = False, time_obs: bool = False, phase_obs: bool = False,
+             step_obs: bool = False) -> int:
+    return sum(b[1] for b in obs_blocks(force_obs, scope_obs, time_obs, phase_obs, step_obs))
 
 
 def obs_options(cfg: TaskConfig) -> dict[str, bool]:
@@ -144,6 +147,8 @@ class NavigationTask:
         self.pulls = np.zeros(4)
         self.insertion = 0.0
         self.prev_axial = 0.0
+        self.prev_cables = np.zeros(4)  # the last step's commanded cable actions and tip displacement (m): step_obs
+        self.tip_step = np.zeros(3)
         self.steps = 0
         self.peak_force = 0.0
         self.start_index = 0
@@ -199,6 +204,8 @@ class NavigationTask:
         self.pulls[:] = 0.0
         self.insertion = 0.0
         self.prev_axial = 0.0
+        self.prev_cables[:] = 0.0
+        self.tip_step[:] = 0.0
         self.steps = 0
         self.peak_force = 0.0
         sim.set_controls(self.pulls, self.insertion)
@@ -288,6 +295,8 @@ class NavigationTask:
         lo, hi = sim.insertion_range
         self.insertion = min(max(self.insertion + done[4] * self.insertion_step, lo), hi)
         self.prev_axial = float(a[4])
+        self.prev_cables = a[:4].copy()
+        tip_before = sim.tip_pos().copy()
         sim.set_controls(self.pulls, self.insertion)
         instability = None
         try:
@@ -298,6 +307,7 @@ class NavigationTask:
             sim.clear_warnings()
             mujoco.mj_forward(sim.model, sim.data)
         self.steps += 1
+        self.tip_step = sim.tip_pos() - tip_before
         self.contact = sim.contact()
         ok = instability is None
         target = self.target_pos()
@@ -345,6 +355,7 @@ class NavigationTask:
             force = force + self._noise.normal(0.0, r.force_noise_n, 3)
         left = np.array([1.0 - self.steps / self.cfg.max_steps]) if self.cfg.time_obs else None
         phase = np.array([sim.load_phase()]) if self.cfg.phase_obs else None
+        step = (self.prev_cables[None], self.tip_step[None]) if self.cfg.step_obs else None
         return mdp.observe(np, self.cfg, delta[None], sim.tip_vel()[None], sim.cable_lengths()[None],
                            np.array([self.prev_axial]), np.array([float(self.contact.active)]),
-                           force[None], self.obs_low, self.obs_high, scope, left, phase)[0]
+                           force[None], self.obs_low, self.obs_high, scope, left, phase, step)[0]

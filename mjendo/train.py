@@ -301,8 +301,9 @@ def _start_from(cfg: TrainConfig, venv):
         last = max((OBS_OPTIONS.index(k) for k in OBS_OPTIONS if have[k]), default=-1)
         if any(have[k] and not want[k] for k in OBS_OPTIONS) or OBS_OPTIONS.index(added[0]) < last:
             raise ConfigError(f"init_from {src} observes {have}, this run {want}: a fine-tune can only add the "
-                              "contact force (force_obs), the scope's state (scope_obs), the time left (time_obs) or "
-                              "the breathing phase (phase_obs) after the source's inputs, not drop or reorder them")
+                              "contact force (force_obs), the scope's state (scope_obs), the time left (time_obs), "
+                              "the breathing phase (phase_obs) or the last step (step_obs) after the source's inputs, "
+                              "not drop or reorder them")
         return _widened_start(cfg, venv, src)
     if cfg.normalize:
         venv = VecNormalize.load(str(src / NORM_FILE), venv)  # keeps adapting to the new stomach

@@ -220,6 +220,28 @@ def test_phase_observation_runs_with_the_breathing_load_and_adds_nothing_else():
     np.testing.assert_array_equal(np.sign(sines[clear]), np.sign(loads[clear]))  # +f0 while the sine is positive
 
 
+def test_step_observation_is_the_last_command_and_the_tip_displacement_it_made():
+    plain, stepped = EndoscopeEnv("DE"), EndoscopeEnv("DE", step_obs=True)
+    assert stepped.observation_space.shape == (22,)
+    op, _ = plain.reset(seed=5)
+    oq, _ = stepped.reset(seed=5)
+    np.testing.assert_array_equal(oq[15:], 0.0)  # nothing done yet
+    actions = np.array([[0.3, 0.0, -0.2, 0.1, 0.4], [0.0, 0.4, 0.0, -0.4, 0.4], [-0.1, 0.0, 0.2, 0.0, -0.2]] * 4)
+    for a in actions:
+        tip = stepped.task.sim.tip_pos().copy()
+        op, *_ = plain.step(a)
+        oq, *_ = stepped.step(a)
+        np.testing.assert_array_equal(op, oq[:15])  # the same physics and the paper's observation
+        np.testing.assert_allclose(oq[15:19], a[:4], atol=1e-7)
+        moved = (stepped.task.sim.tip_pos() - tip) * 1e3
+        np.testing.assert_allclose(oq[19:22], moved, atol=1e-4)
+        assert np.linalg.norm(moved) > 0.1  # the scope is inserting: every step moves the tip
+    # The displacement is the velocity's integral over the step, not the velocity at its end: they differ.
+    assert not np.allclose(oq[19:22], oq[3:6] * stepped.task.control_dt, atol=0.05)
+    oq, _ = stepped.reset(seed=6)
+    np.testing.assert_array_equal(oq[15:], 0.0)  # a new episode forgets the last one's step
+
+
 def test_target_weights_set_how_often_each_target_is_drawn():
     env = EndoscopeEnv("DE")
     hard = set(env.task.targets[env.task.contact_aided].tolist())

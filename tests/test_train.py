@@ -427,7 +427,8 @@ def test_a_fine_tune_adds_inputs_only_after_the_sources(monkeypatch):
     cfg = load_config("E", TRAINING_CONFIG, "randomized-scope")
     cfg.task = {**cfg.task, "time_obs": True}  # wants the scope's state and the time left
     monkeypatch.setattr(artifacts, "obs_options",
-                        lambda _d: {"force_obs": True, "scope_obs": False, "time_obs": True, "phase_obs": False})
+                        lambda _d: {"force_obs": True, "scope_obs": False, "time_obs": True, "phase_obs": False,
+                                    "step_obs": False})
     with pytest.raises(ConfigError, match="after the source's inputs, not drop or reorder them"):
         train_module._start_from(cfg, None)  # the scope's block would land before the source's time
     cfg.task = {**cfg.task, "time_obs": False}
@@ -435,7 +436,8 @@ def test_a_fine_tune_adds_inputs_only_after_the_sources(monkeypatch):
         train_module._start_from(cfg, None)  # the source's time left would be dropped
     cfg.task = {**cfg.task, "scope_obs": False, "time_obs": True, "phase_obs": True}
     monkeypatch.setattr(artifacts, "obs_options",
-                        lambda _d: {"force_obs": True, "scope_obs": False, "time_obs": False, "phase_obs": True})
+                        lambda _d: {"force_obs": True, "scope_obs": False, "time_obs": False, "phase_obs": True,
+                                    "step_obs": False})
     with pytest.raises(ConfigError, match="breathing phase .* not drop or reorder"):
         train_module._start_from(cfg, None)  # the time left would land before the source's phase
 

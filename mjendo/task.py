@@ -296,7 +296,7 @@ class NavigationTask:
         self.insertion = min(max(self.insertion + done[4] * self.insertion_step, lo), hi)
         self.prev_axial = float(a[4])
         self.prev_cables = a[:4].copy()
-        tip_before = sim.tip_pos().copy()
+        tip_before = sim.tip_pos().copy() if self.cfg.step_obs else None
         sim.set_controls(self.pulls, self.insertion)
         instability = None
         try:
@@ -307,7 +307,8 @@ class NavigationTask:
             sim.clear_warnings()
             mujoco.mj_forward(sim.model, sim.data)
         self.steps += 1
-        self.tip_step = sim.tip_pos() - tip_before
+        if tip_before is not None:
+            self.tip_step = sim.tip_pos() - tip_before
         self.contact = sim.contact()
         ok = instability is None
         target = self.target_pos()
@@ -333,11 +334,11 @@ class NavigationTask:
         return StepResult(self.observation(out["delta"]), float(out["reward"]), bool(out["terminated"]),
                           bool(out["truncated"]), info)
 
-    def _actuation_gains(self) -> np.ndarray:
+    def _actuation_gains(self) -> np.ndarray | float:
         """Executed over commanded increment, per channel: 1 unless the randomization draws actuation error."""
         r = self.cfg.randomization
         if r is None or r.actuation_noise == 0:
-            return np.ones(ACTION_SIZE)
+            return 1.0
         return 1.0 + self._noise.normal(0.0, r.actuation_noise, ACTION_SIZE)
 
     # ---------------------------------------------------------- observation

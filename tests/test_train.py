@@ -317,6 +317,8 @@ def test_a_variant_merges_over_its_policy_and_names_its_run(tmp_path):
     paper = load_config("E", TRAINING_CONFIG, "paper")
     assert paper.init_from is None and paper.total_timesteps == 1_000_000 and paper.fidelity == "fast"
     assert load_config("A", TRAINING_CONFIG).variant is None
+    # B and C train in the one-cell stomach the shipped D and E train in (evaluated, as all are, in `fast`)
+    assert [load_config(p, TRAINING_CONFIG).fidelity for p in "ABC"] == ["fast", "fast-coarse", "fast-coarse"]
     with pytest.raises(ConfigError, match="variant scope-curriculum is a variant of policy E, not D"):
         load_config("D", TRAINING_CONFIG, "scope-curriculum")
     with pytest.raises(ConfigError, match="no variant 'nope'; valid: paper, scope-curriculum"):

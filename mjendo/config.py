@@ -184,6 +184,9 @@ class Endoscope:
     hiatus_clearance_mm: float = 0.5  # radial play of the tube in the ring that models the hiatus
 
 
+MAX_TIMESTEP_S = 0.05  # above this no stomach's contact resolves a scope tip moving at its speeds
+
+
 @dataclass(frozen=True)
 class Fidelity:
     """How the stomach's flex degrees of freedom are resolved."""
@@ -341,6 +344,11 @@ class Randomization:
     # (docs/physics.md "Under a policy's own motions"). A training lever, not a calibration: 0 (the
     # default) executes every command exactly.
     actuation_noise: float = 0.0
+    # Physics steps (s) an episode runs at, one drawn per episode with equal chances; None: the task's own. The
+    # fast stomachs run at 20 ms and the full one at 10 ms, and a policy trained at one step loses a fifth of its
+    # trials at the other in any stomach (docs/physics.md "Timestep"): drawing both trains across that model
+    # error. A training lever, not a tissue property.
+    physics_step_s: tuple[float, ...] | None = None
 
     # Any of these set to None keeps the scene's value instead of drawing one.
     RANGES = ("young_scale", "damping_scale", "load_scale", "half_period_s", "friction", "wall_compliance")
@@ -363,8 +371,14 @@ class Randomization:
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int | float) or not 0 <= v <= hi:
                 raise ConfigError(f"randomization {name} must be a number in [0, {hi:g}], not {v!r}")
-        return replace(self, **{n: None if getattr(self, n) is None else tuple(float(x) for x in getattr(self, n))
-                                for n in self.RANGES})
+        steps = self.physics_step_s
+        if steps is not None and (not isinstance(steps, tuple | list) or not steps or not all(
+                isinstance(x, int | float) and not isinstance(x, bool) and 0 < x <= MAX_TIMESTEP_S for x in steps)):
+            raise ConfigError(f"randomization physics_step_s must be None or a list of steps in (0, "
+                              f"{MAX_TIMESTEP_S}] s, not {steps!r}")
+        return replace(self, physics_step_s=None if steps is None else tuple(float(x) for x in steps),
+                       **{n: None if getattr(self, n) is None else tuple(float(x) for x in getattr(self, n))
+                          for n in self.RANGES})
 
     def draw(self, rng: np.random.Generator, nominal_direction) -> dict:
         """One episode's parameters: scales, half period (s), load direction (unit vector), friction, wall
@@ -385,7 +399,8 @@ class Randomization:
         return {"young_scale": log_uniform(self.young_scale), "damping_scale": log_uniform(self.damping_scale),
                 "load_scale": uniform(self.load_scale), "half_period_s": uniform(self.half_period_s),
                 "load_direction": direction, "friction": uniform(self.friction),
-                "wall_compliance": uniform(self.wall_compliance)}
+                "wall_compliance": uniform(self.wall_compliance),
+                "physics_step_s": None if self.physics_step_s is None else float(rng.choice(self.physics_step_s))}
 
 
 @dataclass(frozen=True)
@@ -609,6 +624,10 @@ class TaskConfig:
     # "train" or "test" one of ANATOMY_SETS, drawn per episode by the environment; a path a folder built by
     # `python -m mjendo.anatomy build` (yours) with its target map.
     anatomy: int | str | None = None
+    # Physics step (s) instead of the stomach's own (Fidelity.timestep_s; None: that one). The fast stomachs run at
+    # 20 ms from task version 1 and the full one at 10 ms, and MuJoCo stiffens every soft constraint whose time
+    # constant it had raised to two steps: a policy's success depends on the step (docs/physics.md "Timestep").
+    timestep_s: float | None = None
 
 
 TARGET_LISTS = ("A", "B", "F")  # training, held out, free-space (FE's own from version 1)
@@ -654,7 +673,13 @@ def task_config(**kw) -> TaskConfig:
     _finite("force_penalty", cfg.force_penalty, 0.0, strict=False)
     _finite("distance_weight", cfg.distance_weight, 0.0, strict=False)
     _finite("success_mm", cfg.success_mm, 0.0, strict=True)
+    if cfg.timestep_s is not None:
+        _finite("timestep_s", cfg.timestep_s, 0.0, strict=True)
+        if cfg.timestep_s > MAX_TIMESTEP_S:
+            raise ConfigError(f"timestep_s must be at most {MAX_TIMESTEP_S} s, not {cfg.timestep_s}")
     cfg = replace(cfg, randomization=_randomization(cfg.randomization))
+    for dt in (cfg.randomization and cfg.randomization.physics_step_s) or ():
+        substeps(replace(cfg, timestep_s=dt))  # every drawn step must divide the control period
     if cfg.anatomy is not None:
         _anatomy(cfg)
     cfg = replace(cfg, force_obs=bool(cfg.force_obs), scope_obs=bool(cfg.scope_obs), time_obs=bool(cfg.time_obs),
@@ -700,9 +725,14 @@ def _randomization(value) -> Randomization | None:
                       f"not {value!r}")
 
 
+def physics_step(cfg: TaskConfig) -> float:
+    """The task's physics step (s): its own timestep_s, else its stomach's."""
+    return cfg.timestep_s or fidelity_preset(cfg.fidelity, cfg.version).timestep_s
+
+
 def substeps(cfg: TaskConfig) -> int:
     """Physics steps per control step; the period must be a whole number of them."""
-    dt = fidelity_preset(cfg.fidelity, cfg.version).timestep_s
+    dt = physics_step(cfg)
     n = round(cfg.control_period_s / dt)
     if n < 1 or abs(n * dt - cfg.control_period_s) > 1e-9:
         raise ConfigError(f"control_period_s {cfg.control_period_s} is not a multiple of the {cfg.fidelity} "

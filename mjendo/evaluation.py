@@ -40,6 +40,7 @@ from mjendo.config import (
     POLICY_NAMES,
     VERSIONS,
     ConfigError,
+    fidelity_preset,
     task_config,
 )
 from mjendo.units import to_mm
@@ -203,7 +204,8 @@ def anatomy_name(anatomy) -> str:
 
 def run_trials(controller: str, env_name: str, seeds: list[int], keep_paths: bool = False,
                fidelity: str = "fast", version: int = CURRENT_VERSION, first: int = 0,
-               anatomy=None, steps: int = PAPER_EVAL_STEPS, randomization=None) -> tuple[list, list]:
+               anatomy=None, steps: int = PAPER_EVAL_STEPS, randomization=None,
+               timestep: float | None = None) -> tuple[list, list]:
     """Run trials of one cell; a broken policy marks every trial with its error instead of raising."""
     from mjendo.envs import EndoscopeEnv
     from mjendo.policies import load_controller, obs_options_of, version_of
@@ -211,7 +213,7 @@ def run_trials(controller: str, env_name: str, seeds: list[int], keep_paths: boo
     try:
         env = EndoscopeEnv(env_name, **obs_options_of(controller), max_steps=steps,
                            fidelity=fidelity, version=version_of(controller, version), anatomy=anatomy,
-                           randomization=randomization)
+                           randomization=randomization, timestep_s=timestep)
         ctrl = load_controller(controller, env.task)
     except Exception as exc:  # reported per cell, the other cells still run
         msg = f"{type(exc).__name__}: {exc}".replace("\n", " ")
@@ -222,12 +224,13 @@ def run_trials(controller: str, env_name: str, seeds: list[int], keep_paths: boo
 
 
 def _job(args):
-    controller, env_name, seeds, keep, fidelity, version, first, anatomy, steps, randomization = args
+    controller, env_name, seeds, keep, fidelity, version, first, anatomy, steps, randomization, timestep = args
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     import torch
 
     torch.set_num_threads(1)
-    return run_trials(controller, env_name, seeds, keep, fidelity, version, first, anatomy, steps, randomization)
+    return run_trials(controller, env_name, seeds, keep, fidelity, version, first, anatomy, steps, randomization,
+                      timestep)
 
 
 def wilson(successes: int, n: int, z: float = 1.96) -> tuple[float, float]:
@@ -336,14 +339,16 @@ def _git_commit() -> str:
 
 def write_report(rows: list[dict], out: Path, command: str, wall_s: float, n: int, fidelity: str = "fast",
                  made: list | None = None, classes: list[dict] | None = None, anatomy=None,
-                 steps: int = PAPER_EVAL_STEPS, randomization=None) -> Path:
+                 steps: int = PAPER_EVAL_STEPS, randomization=None, timestep: float | None = None) -> Path:
     """report.md: ours next to the paper's tables, then every figure embedded with its caption."""
     lines = [
         "# mjendo evaluation vs the paper",
         "",
         f"Stomach: {FIDELITIES[fidelity].description} (`fidelity={fidelity}`)"
         + ("" if anatomy is None else f", anatomy `{anatomy}` (trials spread evenly over its stomachs)")
-        + ("" if randomization is None else f", randomized per trial (`{json.dumps(randomization)}`)") + ".  ",
+        + ("" if randomization is None else f", randomized per trial (`{json.dumps(randomization)}`)")
+        + f", physics step {1000 * (timestep or fidelity_preset(fidelity).timestep_s):g} ms"
+        + ("" if timestep is None else " (not the stomach's own)") + ".  ",
         f"Command: `{command}`  ",
         f"Commit: `{_git_commit()}`, wall time {wall_s / 60:.1f} min, {n} trials per cell, {steps} steps each "
         f"(success: final tip error < {PAPER_SUCCESS_MM:g} mm).",
@@ -428,7 +433,7 @@ def read_table(path: Path) -> list[dict]:
 def evaluate(trials: int = 200, controllers=CONTROLLERS, workers: int = 2, out: Path | None = None, seed: int = 0,
              command: str = "make eval", fidelity: str = "fast", envs: tuple[str, ...] | None = None,
              overwrite: bool = False, version: int = CURRENT_VERSION, anatomy=None,
-             steps: int = PAPER_EVAL_STEPS, randomization=None) -> dict:
+             steps: int = PAPER_EVAL_STEPS, randomization=None, timestep: float | None = None) -> dict:
     """Every cell's trials; policies act in the task version they trained in, the baseline in ``version``.
 
     ``anatomy``: another stomach or a set of them (TaskConfig.anatomy); trials spread evenly over a set.
@@ -436,6 +441,7 @@ def evaluate(trials: int = 200, controllers=CONTROLLERS, workers: int = 2, out: 
     config.Randomization's ranges, or a dict of its fields), from the trial's seed.
     ``steps``: the trial's length (the paper's 80; longer ones measure what the trial's time costs, and
     success by step 80 in them is the 80-step trial's, the trajectories being the same).
+    ``timestep``: the physics step instead of the stomach's own (TaskConfig.timestep_s).
     """
     from tqdm import tqdm
 
@@ -443,8 +449,8 @@ def evaluate(trials: int = 200, controllers=CONTROLLERS, workers: int = 2, out: 
         raise ConfigError("--trials, --workers and --trial-steps must be >= 1 and --seed >= 0 "
                           f"(got {trials}, {workers}, {steps}, {seed})")
     check_controllers(controllers)
-    if randomization is not None:
-        task_config(randomization=randomization)  # a bad range stops here, not as an error in every trial
+    if randomization is not None or timestep is not None:  # a bad value stops here, not as an error in every trial
+        task_config(fidelity=fidelity, randomization=randomization, timestep_s=timestep)
     out = Path(out) if out is not None else default_out(fidelity)
     guard_overwrite(out, trials, overwrite)
     out.mkdir(parents=True, exist_ok=True)
@@ -455,7 +461,8 @@ def evaluate(trials: int = 200, controllers=CONTROLLERS, workers: int = 2, out: 
         seeds = [EVAL_SEED_BASE + seed * 100003 + i for i in range(trials)]
         for j in range(0, trials, chunk):
             keep = c == "E" and e == "DE" and j == 0
-            jobs.append((c, e, seeds[j:j + chunk], keep, fidelity, version, j, anatomy, steps, randomization))
+            jobs.append((c, e, seeds[j:j + chunk], keep, fidelity, version, j, anatomy, steps, randomization,
+                         timestep))
     t0 = time.time()
     all_trials, tip_paths = [], []
     with get_context("spawn").Pool(workers) as pool:
@@ -474,7 +481,7 @@ def evaluate(trials: int = 200, controllers=CONTROLLERS, workers: int = 2, out: 
 
     made = figures.all_figures(rows, tip_paths, out, [asdict(t) for t in all_trials], steps)
     report = write_report(rows, out, command, wall, trials, fidelity, made, by_class(all_trials), anatomy, steps,
-                          randomization)
+                          randomization, timestep)
     print(report.read_text())
     print(f"wrote {out} in {wall / 60:.1f} min")
     return {"rows": rows, "wall_s": wall}
@@ -518,12 +525,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--randomization", type=randomization_arg,
                     help="tissue, load, friction and sensor noise drawn per trial: 'true' for the ranges of "
                     "config.Randomization, or a JSON object of its fields, e.g. '{\"young_scale\": [0.33, 0.34]}'")
+    ap.add_argument("--timestep", type=float, help="physics step in s instead of the stomach's own (full 0.01, "
+                    "the fast ones 0.02): how much a policy's success depends on it")
     a = ap.parse_args(argv)
     command = "python -m mjendo.evaluation " + " ".join(argv if argv is not None else sys.argv[1:])
     return cli.run(lambda: evaluate(a.trials, tuple(a.policies.split(",")), a.workers, a.out, a.seed, command=command,
                                     fidelity=a.fidelity, envs=tuple(a.envs.split(",")) if a.envs else None,
                                     overwrite=a.overwrite, version=a.version, anatomy=a.anatomy,
-                                    steps=a.trial_steps, randomization=a.randomization),
+                                    steps=a.trial_steps, randomization=a.randomization, timestep=a.timestep),
                    ConfigError, PolicyError)
 
 

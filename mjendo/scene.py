@@ -23,6 +23,7 @@ from mjendo import anatomy, endoscope, paths
 from mjendo.config import (
     CURRENT_VERSION,
     FIDELITIES,
+    MAX_TIMESTEP_S,
     PAPER_SUCCESS_MM,
     VERSIONS,
     ConfigError,
@@ -152,8 +153,8 @@ def validate(cfg: SceneConfig) -> None:
                           "MuJoCo's flex is ill-conditioned near incompressibility")
     if mat.damping < 0 or mat.drag_per_s < 0 or mat.density_kg_m3 <= 0:
         raise ConfigError("damping and drag_per_s must be >= 0 and density > 0")
-    if not 0.0 < fid.timestep_s <= 0.05:
-        raise ConfigError(f"timestep must be in (0, 50 ms] (got {fid.timestep_s} s)")
+    if not 0.0 < fid.timestep_s <= MAX_TIMESTEP_S:
+        raise ConfigError(f"timestep must be in (0, {MAX_TIMESTEP_S * 1000:g} ms] (got {fid.timestep_s} s)")
     solver_id(fid.solver)
 
 

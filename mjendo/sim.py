@@ -72,7 +72,8 @@ class Simulator:
     """One scene's model and data with named access to what the task needs."""
 
     def __init__(self, env: str = "DE", fidelity: str = "fast", path: Path | None = None,
-                 load: PeriodicLoad | None = None, version: int = CURRENT_VERSION, stomach: Path | None = None):
+                 load: PeriodicLoad | None = None, version: int = CURRENT_VERSION, stomach: Path | None = None,
+                 timestep: float | None = None):
         self.env = condition(env)
         # The stomach's folder (None: the built-in one): its scenes, and the vertices the load pushes.
         self.stomach_dir = Path(stomach) if stomach is not None else anatomy.STOMACH_DIR
@@ -81,6 +82,8 @@ class Simulator:
             raise FileNotFoundError(f"scene file {self.path} is missing; regenerate the scenes "
                                     "with `make models` (python -m mjendo.scene)")
         self.model = mujoco.MjModel.from_xml_path(str(self.path))
+        if timestep is not None:  # another physics step on the same scene (TaskConfig.timestep_s)
+            self.model.opt.timestep = timestep
         self.data = mujoco.MjData(self.model)
         self._ids(self.model)
         load = load or PeriodicLoad()

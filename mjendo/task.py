@@ -8,7 +8,7 @@ converted only here through :mod:`mjendo.units`.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import lru_cache
 from pathlib import Path
 
@@ -113,7 +113,7 @@ class NavigationTask:
         c = self.cfg
         self.stomach_dir = anatomy.stomach_dir(c.anatomy)
         stomach = None if c.anatomy is None else self.stomach_dir
-        self.sim = Simulator(c.env, c.fidelity, version=c.version, stomach=stomach)
+        self.sim = Simulator(c.env, c.fidelity, version=c.version, stomach=stomach, timestep=c.timestep_s)
         self.stomach = anatomy.load(self.stomach_dir)
         table = table or targets.load(c.version, targets.map_path(self.stomach_dir))
         listname = c.target_list or default_target_list(c.env, c.version)
@@ -221,6 +221,9 @@ class NavigationTask:
         p = r.draw(rng, sim.load_direction)
         self._noise = np.random.default_rng(int(rng.integers(2**63)))
         self.episode_params = {**p, "load_direction": [round(float(x), 6) for x in p["load_direction"]]}
+        if p["physics_step_s"] is not None:
+            sim.model.opt.timestep = p["physics_step_s"]
+            self.substeps = substeps(replace(self.cfg, timestep_s=p["physics_step_s"]))
         if not sim.has_stomach:
             return
         sim.set_tissue(p["young_scale"] or 1.0, p["damping_scale"] or 1.0)

@@ -451,6 +451,9 @@ BAD_TASK_ARGS = [
     ({"width": 0}, "width must be a whole number of pixels"),
     ({"height": 100000}, "height must be a whole number of pixels"),
     ({"control_period_s": 0.03}, "not a multiple of the fast timestep 0.02 s; use e.g. 0.04"),
+    ({"timestep_s": 0.03}, "not a multiple of the fast timestep 0.03 s; use e.g. 0.09"),
+    ({"timestep_s": 0.0}, "timestep_s must be a finite number > 0"),
+    ({"timestep_s": 0.1}, "timestep_s must be at most 0.05 s"),
     ({"version": 7}, "unknown task version 7"),
     ({"target_list": "C"}, "unknown target_list 'C'"),
     ({"cable_mm": 2.0}, "unknown task argument"),
@@ -461,6 +464,28 @@ BAD_TASK_ARGS = [
 def test_bad_task_arguments_are_refused_at_construction(kwargs, message):
     with pytest.raises(ConfigError, match=message):
         EndoscopeEnv("DE", **kwargs)
+
+
+def test_another_physics_step_keeps_the_control_period_and_the_scope_converges():
+    # The same open-loop commands in free space at the fast stomach's 20 ms and at 10 ms: each control step still
+    # lasts 0.1 s, and the tip's path differs by about a millimetre (the scope alone converges in the step).
+    actions = np.clip(np.random.default_rng(0).normal(0, 0.25, (30, 5)), -0.4, 0.4)
+    actions[:, 4] = np.abs(actions[:, 4]) + 0.15
+    paths = []
+    for dt in (None, 0.01):
+        env = EndoscopeEnv("FE", fidelity="fast-coarse", timestep_s=dt, randomize_phase=False)
+        assert env.task.sim.model.opt.timestep == (dt or 0.02) and env.task.control_dt == pytest.approx(0.1)
+        env.reset(seed=0)
+        t0 = env.task.sim.data.time
+        tips = []
+        for a in actions:
+            env.step(a)
+            tips.append(env.task.sim.tip_pos())
+        assert env.task.sim.data.time - t0 == pytest.approx(3.0)
+        paths.append(np.array(tips))
+    gap_mm = 1000 * np.linalg.norm(paths[0] - paths[1], axis=1)
+    travel_mm = 1000 * np.linalg.norm(paths[0][-1] - paths[0][0])
+    assert travel_mm > 30 and gap_mm.mean() < 1.5 and gap_mm.max() < 4.0
 
 
 def test_bad_control_never_reaches_mujoco_silently():

@@ -227,6 +227,21 @@ def test_randomized_trials_draw_the_load_per_trial_and_a_bad_range_stops_before_
         main(["--randomization", "{friction: 0.2}", "--out", str(tmp_path)])
 
 
+def test_trials_at_another_physics_step_say_so_and_a_bad_step_stops_before_any(tmp_path):
+    # The baseline at the full stomach's 10 ms in the one-cell fast stomach: the trial keeps its 0.1 s control
+    # steps, and the report names the step; a step the control period is no multiple of stops the evaluation.
+    from mjendo.evaluation import read_table
+
+    evaluate(trials=1, controllers=("baseline",), out=tmp_path, fidelity="fast-coarse", envs=("SE",),
+             timestep=0.01)
+    (t,) = read_table(tmp_path / "trials.csv.gz")
+    assert not t["error"] and float(t["duration_s"]) == pytest.approx(0.1 * int(t["steps"]))
+    assert "physics step 10 ms (not the stomach's own)" in (tmp_path / "report.md").read_text()
+    with pytest.raises(ConfigError, match="not a multiple of the fast-coarse timestep 0.03"):
+        evaluate(trials=1, controllers=("baseline",), out=tmp_path / "bad", fidelity="fast-coarse", timestep=0.03)
+    assert not (tmp_path / "bad").exists()
+
+
 def test_success_by_step_climbs_to_each_cells_success_rate(tmp_path, monkeypatch):
     ts = [{"controller": "E", "env": "DE", "success": ok, "steps_to_success": s, "target_class": c}
           for ok, s, c in ((True, 20.0, "free"), (True, 90.0, "contact_aided"), (False, math.nan, "contact_aided"),

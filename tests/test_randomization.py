@@ -186,11 +186,31 @@ def test_actuation_noise_scatters_the_executed_steps_about_the_commanded_ones():
     assert np.linalg.norm(executed[0.2][1][-1] - executed[0.0][1][-1]) > 1e-3  # the tip goes elsewhere
 
 
+def test_physics_step_draw_runs_each_episode_at_its_step_and_keeps_the_control_period():
+    only = {name: None for name in Randomization.RANGES} | {"load_tilt_deg": 0.0, "force_noise_n": 0.0,
+                                                           "target_noise_mm": 0.0, "settle_s": 0.0}
+    env = EndoscopeEnv(env="DE", fidelity="fast-coarse", randomization=only | {"physics_step_s": [0.01, 0.02]})
+    seen = {}
+    for seed in range(8):
+        _, info = env.reset(seed=seed)
+        dt = info["randomization"]["physics_step_s"]
+        assert env.task.sim.model.opt.timestep == dt and env.task.substeps == round(0.1 / dt)
+        t0 = env.task.sim.data.time
+        env.step(np.array([0.2, 0.0, 0.0, 0.0, 0.4]))
+        assert env.task.sim.data.time - t0 == pytest.approx(0.1)  # one control period at either step
+        seen[dt] = seen.get(dt, 0) + 1
+    assert set(seen) == {0.01, 0.02}
+    with pytest.raises(ConfigError, match="not a multiple of the fast timestep 0.03"):
+        task_config(randomization=only | {"physics_step_s": [0.01, 0.03]})
+
+
 @pytest.mark.parametrize("bad, word", [({"young_scale": (2.0, 1.0)}, "young_scale"),
                                        ({"friction": (-0.1, 0.2)}, "friction"),
                                        ({"wall_compliance": (0.5, 1.5)}, "wall_compliance"),
                                        ({"load_tilt_deg": 120.0}, "load_tilt_deg"),
                                        ({"actuation_noise": -0.1}, "actuation_noise"),
+                                       ({"physics_step_s": [0.0]}, "physics_step_s"),
+                                       ({"physics_step_s": 0.01}, "physics_step_s"),
                                        ({"stiffness": (1, 2)}, "unknown randomization"),
                                        ("yes", "randomization must be")])
 def test_bad_randomization_names_the_field(bad, word):

@@ -725,14 +725,10 @@ def _randomization(value) -> Randomization | None:
                       f"not {value!r}")
 
 
-def physics_step(cfg: TaskConfig) -> float:
-    """The task's physics step (s): its own timestep_s, else its stomach's."""
-    return cfg.timestep_s or fidelity_preset(cfg.fidelity, cfg.version).timestep_s
-
-
 def substeps(cfg: TaskConfig) -> int:
-    """Physics steps per control step; the period must be a whole number of them."""
-    dt = physics_step(cfg)
+    """Physics steps per control step (at the task's own timestep_s, else its stomach's); the period must be a
+    whole number of them."""
+    dt = cfg.timestep_s or fidelity_preset(cfg.fidelity, cfg.version).timestep_s
     n = round(cfg.control_period_s / dt)
     if n < 1 or abs(n * dt - cfg.control_period_s) > 1e-9:
         raise ConfigError(f"control_period_s {cfg.control_period_s} is not a multiple of the {cfg.fidelity} "

@@ -248,7 +248,10 @@ class NavigationTask:
     def set_target(self, index: int) -> np.ndarray:
         """Aim at another target of the list (its id; e.g. to replay a chosen target); returns the observation."""
         if index not in set(self.targets.tolist()):
-            raise ValueError(f"target {index} is not in target list {self.target_list}: {self.targets.tolist()}")
+            ids = self.targets.tolist()
+            shown = ", ".join(map(str, ids[:8])) + (f", ... ({len(ids)} in all)" if len(ids) > 8 else "")
+            raise ValueError(f"target {index} is not in target list {self.target_list} ({shown}); pick one of "
+                             "env.task.targets")
         self.target = int(index)
         self._row = int(np.flatnonzero(self.targets == index)[0])
         self._mark_target(False)

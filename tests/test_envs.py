@@ -276,6 +276,9 @@ def test_bad_actions_and_names():
         EndoscopeEnv("DE", target_list="C")
     with pytest.raises(ConfigError, match="camera"):
         EndoscopeEnv("DE", camera="nose")
+    with pytest.raises(ValueError, match=r"target 0 is not in target list A \(\d+(, \d+){7}, \.\.\. \(\d+ in all\)\); "
+                       "pick one of env.task.targets$"):
+        env.reset(seed=0, options={"target_index": 0})  # names a few of the list's ids, not all of them
     with pytest.raises(gym.error.Error):
         gym.make("mjendo/XE-v0")
 

@@ -481,7 +481,7 @@ def analyse(rows: list[dict]) -> tuple[list[dict], list[dict], dict]:
     rng = np.random.default_rng(0)  # one stream for all estimates: their replicates are independent
     for (pol, env), by_seed in per_cell.items():
         seeds = sorted(by_seed)
-        success = [np.array([_bool(t["success"]) for t in by_seed[s]], float) for s in seeds]
+        success = [np.array([success_of(t) for t in by_seed[s]], float) for s in seeds]
         est = stats.estimate(success, rng)
         estimates[pol, env] = est
         err = stats.estimate([np.array([float(t["final_mm"]) for t in by_seed[s]]) for s in seeds], rng)
@@ -512,7 +512,7 @@ def analyse(rows: list[dict]) -> tuple[list[dict], list[dict], dict]:
         for env in CONDITIONS:
             if (a, env) in estimates and (b, env) in estimates:
                 d = stats.difference(estimates[a, env], estimates[b, env])
-                lo, hi = _over_targets(per_cell[a, env], per_cell[b, env], rng)
+                lo, hi = over_targets(per_cell[a, env], per_cell[b, env], rng)
                 comparisons.append({"comparison": f"{a} - {b}", "env": env, "diff_points": 100 * d["mean"],
                                     "low": 100 * d["low"], "high": 100 * d["high"],
                                     "supported": d["excludes_zero"], "low_targets": lo, "high_targets": hi,
@@ -524,7 +524,7 @@ def analyse(rows: list[dict]) -> tuple[list[dict], list[dict], dict]:
     return summary, comparisons, {k: v for k, v in per_cell.items()}
 
 
-def _over_targets(a: dict[int, list[dict]], b: dict[int, list[dict]], rng) -> tuple[float, float]:
+def over_targets(a: dict[int, list[dict]], b: dict[int, list[dict]], rng) -> tuple[float, float]:
     """95 % interval (points) of a - b resampling training seeds and targets (the targets both were tried on),
     and in a set of stomachs the stomachs too.
 
@@ -544,7 +544,7 @@ def _over_targets(a: dict[int, list[dict]], b: dict[int, list[dict]], rng) -> tu
 
 def _target_table(by_seed: dict[int, list[dict]], targets: list) -> np.ndarray:
     """(seeds, targets): each training seed's success rate on each target (NaN where it was not tried)."""
-    return np.array([[np.mean([_bool(t["success"]) for t in by_seed[s] if _target(t) == k] or [np.nan])
+    return np.array([[np.mean([success_of(t) for t in by_seed[s] if _target(t) == k] or [np.nan])
                       for k in targets] for s in sorted(by_seed)])
 
 
@@ -581,7 +581,7 @@ def _column(trials: list[dict], name: str) -> np.ndarray:
 
 
 def _class_sr(trials: list[dict], classes: dict[int, str], cls: str) -> float:
-    hit = [_bool(t["success"]) for t in trials if _class(t, classes) == cls]
+    hit = [success_of(t) for t in trials if _class(t, classes) == cls]
     return 100.0 * float(np.mean(hit)) if hit else float("nan")
 
 
@@ -616,7 +616,7 @@ def per_target_rows(per_cell: dict) -> list[dict]:
                 groups.setdefault(_target(t), []).append(t)
         out += [{"policy": pol, "env": env, **({"anatomy": a} if a else {}), "target": k,
                  "class": _class(ts[0], classes), "trials": len(ts),
-                 "success_pct": 100.0 * np.mean([_bool(t["success"]) for t in ts])}
+                 "success_pct": 100.0 * np.mean([success_of(t) for t in ts])}
                 for (a, k), ts in sorted(groups.items())]
     return out
 
@@ -627,15 +627,16 @@ def per_stomach_rows(per_cell: dict) -> list[dict]:
     for (pol, env), by_seed in per_cell.items():
         groups: dict[str, list[bool]] = {}
         for t in (t for s in sorted(by_seed) for t in by_seed[s] if t.get("anatomy") not in (None, "")):
-            groups.setdefault(str(t["anatomy"]), []).append(_bool(t["success"]))
+            groups.setdefault(str(t["anatomy"]), []).append(success_of(t))
         order = sorted(groups, key=lambda a: (not a.isdigit(), int(a) if a.isdigit() else 0, a))  # seeds by number
         out += [{"policy": pol, "env": env, "anatomy": a, "trials": len(groups[a]),
                  "success_pct": 100.0 * np.mean(groups[a])} for a in order]
     return out
 
 
-def _bool(x) -> bool:
-    return x is True or str(x) == "True"
+def success_of(trial: dict) -> bool:
+    """A trial's outcome, from a fresh evaluation (bool) or a cached table (the string "True")."""
+    return trial["success"] is True or str(trial["success"]) == "True"
 
 
 def _csv(path: Path, rows: list[dict]) -> None:

@@ -79,7 +79,8 @@ def test_ids_are_registered_whichever_is_imported_first():
 
 
 @pytest.mark.parametrize("args", [["mjendo.anatomy", "report"], ["mjendo.scene", "--help"], ["mjendo.train", "--help"],
-                                  ["mjendo.evaluation", "--help"], ["mjendo.viewer", "--help"]])
+                                  ["mjendo.evaluation", "--help"], ["mjendo.viewer", "--help"],
+                                  ["mjendo.compare", "--help"]])
 def test_command_line_tools_start_without_warnings(args):
     res = subprocess.run([sys.executable, "-W", "default", "-m", *args], capture_output=True, text=True, cwd=ROOT)
     assert res.returncode == 0 and "Warning" not in res.stderr, res.stderr

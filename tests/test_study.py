@@ -321,13 +321,13 @@ def test_comparisons_resample_seeds_and_targets():
                     for _ in range(2)] for s in range(3)}
 
     always, never = rows(lambda k: 1.0), rows(lambda k: 0.0)
-    assert study._over_targets(always, never, rng) == (100.0, 100.0)
+    assert study.over_targets(always, never, rng) == (100.0, 100.0)
     # A seed evaluated now (int targets) beside seeds read from their cache (CSV strings) is the same study.
     cached = {s: [{**t, "target": str(t["target"])} for t in ts] for s, ts in always.items() if s}
-    assert study._over_targets({0: always[0], **cached}, never, rng) == (100.0, 100.0)
+    assert study.over_targets({0: always[0], **cached}, never, rng) == (100.0, 100.0)
     # Success that depends on the target only: the seeds agree, the targets carry all the spread.
     half = rows(lambda k: float(k < 5))
-    lo, hi = study._over_targets(half, never, rng)
+    lo, hi = study.over_targets(half, never, rng)
     assert 15 < lo < 50 < hi < 85
 
 

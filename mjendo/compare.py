@@ -38,7 +38,8 @@ def trials_files(paths: list[Path]) -> list[Path]:
 
 
 def seeds_of(rows: list[dict], pattern: str, env: str) -> dict[str, list[dict]]:
-    """Controller name -> its trials in ``env``, for every controller whose name contains ``pattern``."""
+    """Controller name -> its trials in ``env``, for every controller whose name contains ``pattern``, in name
+    order: the bootstrap then gives the same intervals whatever order the reports were named in."""
     out: dict[str, list[dict]] = {}
     for r in rows:
         if pattern in r["controller"] and r["env"] == env and not r.get("error"):
@@ -46,7 +47,7 @@ def seeds_of(rows: list[dict], pattern: str, env: str) -> dict[str, list[dict]]:
     if not out:
         names = sorted({r["controller"] for r in rows})
         raise ConfigError(f"no controller in {env} contains {pattern!r}; the tables hold {', '.join(names)}")
-    return out
+    return dict(sorted(out.items()))
 
 
 def compare(paths: list[Path], a: str, b: str, env: str = "DE") -> dict:
@@ -63,9 +64,7 @@ def compare(paths: list[Path], a: str, b: str, env: str = "DE") -> dict:
         out[name] = {**stats.estimate(per_seed, rng), "controllers": list(seeds),
                      "per_seed": [float(s.mean()) for s in per_seed], "trials": [len(s) for s in per_seed]}
     diff = stats.difference(out["a"], out["b"])
-    seeds_a = dict(enumerate(by["a"].values()))
-    seeds_b = dict(enumerate(by["b"].values()))
-    lo, hi = over_targets(seeds_a, seeds_b, rng)
+    lo, hi = over_targets(*(dict(enumerate(by[k].values())) for k in ("a", "b")), rng)
     out["a - b"] = {**diff, "low_targets": lo / 100, "high_targets": hi / 100}
     return out
 

@@ -44,7 +44,7 @@ class GuidedStarts(gym.Wrapper):
     def _recorded(self, task) -> dict[int, list[int]]:
         folder = Path(task.stomach_dir)
         if folder not in self._demos:
-            meta = targets.read_map(targets.map_path(folder))
+            meta = targets.read_map(targets.map_path(folder, task.cfg.version))
             self._demos[folder] = {p["id"]: p["demos"] for p in meta["points"]
                                    if p["class"] == "contact_aided" and p.get("demos")}
         return self._demos[folder]

@@ -105,6 +105,11 @@ class EndoscopeEnv(gym.Env):
 
     ## Version history
 
+    * v2: v1 at the full FEM stomach's 10 ms physics step in every stomach (10 physics steps per control
+      step; load gains rescaled to v1's target motion), and its own reachability map measured there
+      (``python -m mjendo.targets map --version 2``, a wider demonstrator family): at 20 ms MuJoCo holds
+      contacts and anchors to a 0.04 s time constant, a softer wall than configured, and at 10 ms known ways
+      reach only 28 of v1's 42 contact-aided targets of list A from every start.
     * v1: the contact-aided problem. The insertion tube hangs in a compliant pivot at the cardia
       (the hiatus) instead of a rigid straight slide; the patient lies in the left lateral decubitus
       position (gravity towards the greater curvature); control at 10 Hz with insertion up to

@@ -42,12 +42,27 @@ from mjendo.config import (
     FIDELITIES,
     PAPER_EVAL_STEPS,
     PAPER_SUCCESS_MM,
+    VERSIONS,
     ConfigError,
+    fidelity_preset,
 )
 from mjendo.units import from_mm, to_mm
 
 MAP_NAME = "targets.json"  # a stomach's map; the committed ones are gzip-compressed (MAP_NAME + ".gz", 7x smaller)
-TARGETS_FILE = paths.STOMACH_DIR / f"{MAP_NAME}.gz"  # the built-in stomach's
+
+
+def map_name(version: int = CURRENT_VERSION) -> str:
+    """A stomach's map file for a task version: version 1's targets.json, a later version's targets_v<N>.json
+    (each version's physics decides which points are reachable, so each has its own map)."""
+    return MAP_NAME if version <= 1 else MAP_NAME.replace(".json", f"_v{version}.json")
+
+
+def targets_file(version: int = CURRENT_VERSION) -> Path:
+    """The built-in stomach's committed map of a task version."""
+    return paths.STOMACH_DIR / f"{map_name(version)}.gz"
+
+
+TARGETS_FILE = targets_file()  # the built-in stomach's, of the current task version
 FREE_MM = PAPER_SUCCESS_MM  # free: the tip reaches the point in free space (the success distance)
 CONTACT_AIDED_MM = 10.0  # contact-aided: free space misses it by this much or more
 MIN_CARDIA_MM = 35.0  # targets this close to the cardia are in the scope's blind start
@@ -94,10 +109,10 @@ class TargetTable:
         return np.einsum("nk,nkd->nd", self.bary[r], vertices[self.tris[r]])
 
 
-def map_path(stomach: Path) -> Path:
-    """The target map of a stomach's folder: targets.json, or the gzip-compressed targets.json.gz that the
-    committed stomachs keep (one per benchmark stomach, 7x smaller)."""
-    plain = Path(stomach) / MAP_NAME
+def map_path(stomach: Path, version: int = CURRENT_VERSION) -> Path:
+    """The target map of a stomach's folder for a task version: targets.json (map_name), or the gzip-compressed
+    targets.json.gz that the committed stomachs keep (one per benchmark stomach, 7x smaller)."""
+    plain = Path(stomach) / map_name(version)
     packed = plain.with_name(plain.name + ".gz")
     return packed if packed.exists() and not plain.exists() else plain
 
@@ -108,15 +123,16 @@ def read_map(path: Path) -> dict:
     return json.loads(gzip.decompress(path.read_bytes()) if path.suffix == ".gz" else path.read_text())
 
 
-def load(version: int = CURRENT_VERSION, path: Path = TARGETS_FILE) -> TargetTable:
-    """The target table of a task version (version 0: lumen vertices; later: surface points)."""
+def load(version: int = CURRENT_VERSION, path: Path | None = None) -> TargetTable:
+    """The target table of a task version (version 0: lumen vertices; later: surface points) from ``path``
+    (default: the built-in stomach's map of that version)."""
     if version == 0:
         st = anatomy.load()
         ids = np.array(sorted(set(st.targets_a + st.targets_b)), dtype=np.int64)
         tris = np.repeat(ids[:, None], 3, axis=1)
         bary = np.tile([1.0, 0.0, 0.0], (len(ids), 1))
         return TargetTable(ids, tris, bary, {"A": st.targets_a, "B": st.targets_b, "F": st.targets_a}, {})
-    path = Path(path)
+    path = Path(path or targets_file(version))
     if not path.exists():
         load_error(path)
     meta = read_map(path)
@@ -126,7 +142,7 @@ def load(version: int = CURRENT_VERSION, path: Path = TARGETS_FILE) -> TargetTab
                        np.array([p["class"] for p in pts], dtype=object))
 
 
-def fingerprint(version: int = CURRENT_VERSION, path: Path = TARGETS_FILE) -> str:
+def fingerprint(version: int = CURRENT_VERSION, path: Path | None = None) -> str:
     """Short hash of a task version's target lists (ids, triangles, weights): a policy and its results name
     the targets they were trained and evaluated on, as the scene fingerprint names the physics."""
     import hashlib
@@ -215,9 +231,26 @@ SCRIPTS = [(d, m) for d in np.linspace(0, 2 * np.pi, 12, endpoint=False) for m i
 # Demonstrators: (bending direction, bending rate over the first 12 steps while inserting, turn of the
 # bending at depth: 0 none, +-1 a quarter turn either way, the step the turn starts). Every one inserts at
 # full speed throughout: the deep targets need about 50 of a trial's 80 steps of insertion.
-DEMOS = [(d, m, 0, 0) for d in np.linspace(0, 2 * np.pi, 12, endpoint=False) for m in (0.0, 0.2, 0.4)] + \
-    [(d, m, turn, k0) for d in np.linspace(0, 2 * np.pi, 12, endpoint=False) for m in (0.0, 0.2, 0.4)
-     for turn in (1, -1) for k0 in (40, 60)]
+_TWELVE = np.linspace(0, 2 * np.pi, 12, endpoint=False)
+
+
+def _family(directions: np.ndarray, rates: tuple, turn_steps: tuple, plain: bool = True) -> list[tuple]:
+    return ([(d, m, 0, 0) for d in directions for m in rates] if plain else []) + \
+        [(d, m, turn, k0) for d in directions for m in rates for turn in (1, -1) for k0 in turn_steps]
+
+
+DEMOS = _family(_TWELVE, (0.0, 0.2, 0.4), (40, 60))
+V1_DEMOS = len(DEMOS)  # 180: version 1's map raced these, and its recorded indices point into them
+# From version 2 (every stomach at 10 ms, where the stiffer contact carries the tube less far along the wall) also
+# the twelve directions between those, and turns starting at steps 50 and 70 in all 24 directions: 552 in all.
+DEMOS += _family(_TWELVE + np.pi / 12, (0.0, 0.2, 0.4), (40, 60)) + \
+    _family(np.concatenate([_TWELVE, _TWELVE + np.pi / 12]), (0.2, 0.4), (50, 70), plain=False)
+
+
+def demos_of(version: int) -> list[tuple]:
+    """The demonstrators a task version's map races (version 1: the first 180 of DEMOS)."""
+    return DEMOS[:V1_DEMOS] if version <= 1 else DEMOS
+
 PHASES = 4  # DE start phases (of the load cycle) every contact-aided point must be reached from
 AIM_NOISE = (0.2, 0.4)  # share of random actions in the aimed passes: the second pass explores more
 N_STEPS = 128  # free-space strategies: the training episode's length (longer than a trial: conservative)
@@ -321,7 +354,8 @@ def free_reach(version: int, tris: np.ndarray, bary: np.ndarray, episodes: int, 
     quasi-static sweep). Work is spread over ``workers`` processes; the result does not depend on their number.
     """
     best = np.full(len(tris), np.inf) if start is None else start.copy()
-    for phase, (kind, items) in enumerate([("script", SCRIPTS), ("demo", DEMOS), ("random", list(range(episodes)))]):
+    for phase, (kind, items) in enumerate([("script", SCRIPTS), ("demo", demos_of(version)),
+                                           ("random", list(range(episodes)))]):
         np.minimum(best, _pool("FE", version, tris, bary, kind, items, seed * 1000 + phase * 100, progress,
                                workers, N_STEPS, anatomy_id=anatomy_id).min(0), out=best)
     reps = representatives(tris, bary)
@@ -336,9 +370,10 @@ def free_reach(version: int, tris: np.ndarray, bary: np.ndarray, episodes: int, 
 def wall_reach(version: int, tris: np.ndarray, bary: np.ndarray, seed: int, progress: bool = True,
                workers: int = 2, anatomy_id=None) -> np.ndarray:
     """Closest approach (m) of every demonstrator to every point within a trial, in SE then in each DE phase:
-    shape (1 + PHASES, len(DEMOS), points)."""
+    shape (1 + PHASES, len(demos_of(version)), points)."""
     runs = [("SE", None)] + [("DE", p) for p in range(PHASES)]
-    return np.array([_pool(env, version, tris, bary, "demo", DEMOS, seed * 1000 + 500 + k, progress, workers,
+    demos = demos_of(version)
+    return np.array([_pool(env, version, tris, bary, "demo", demos, seed * 1000 + 500 + k, progress, workers,
                            TRIAL_STEPS, phase=p, anatomy_id=anatomy_id) for k, (env, p) in enumerate(runs)])
 
 
@@ -401,15 +436,17 @@ def _listed_aided(list_name: str, path: Path) -> tuple[dict, list[int]]:
     return points, [i for i in meta["lists"][list_name] if points[i]["class"] == "contact_aided"]
 
 
-def _starts(fidelity: str, list_name: str, phases: int = PHASES, env: str = "DE", anatomy_id=None):
+def _starts(fidelity: str, list_name: str, phases: int = PHASES, env: str = "DE", anatomy_id=None,
+            timestep: float | None = None, version: int = CURRENT_VERSION):
     """The trial starts every contact-aided point must be reached from: SE, then ``phases`` evenly spaced load
     phases of ``env`` (the map's 4 of DE, or more to look between them, or a stronger load), in the built-in
-    stomach or ``anatomy_id``'s; yields the task, the start state (None: the only one) and a label."""
+    stomach or ``anatomy_id``'s, at the stomach's own physics step or ``timestep``; yields the task, the start
+    state (None: the only one) and a label."""
     from mjendo.task import NavigationTask
 
     for name, phase in [("SE", None)] + [(env, p) for p in range(phases)]:
         task = NavigationTask(env=name, target_list=list_name, max_steps=10**6, randomize_phase=False,
-                              fidelity=fidelity, anatomy=anatomy_id)
+                              fidelity=fidelity, anatomy=anatomy_id, timestep_s=timestep, version=version)
         start = None if phase is None else phase * len(task.start_states) // phases
         yield task, start, name if phase is None else f"{name} phase {phase}/{phases}"
 
@@ -428,21 +465,21 @@ def recorded_demos(list_name: str, path: Path = TARGETS_FILE) -> list[int]:
     return sorted({d for i in listed for d in points[i]["demos"]})
 
 
-def stomach_map(anatomy_id=None) -> Path:
+def stomach_map(anatomy_id=None, version: int = CURRENT_VERSION) -> Path:
     """The target map of the built-in stomach (None), a generated one (its seed) or a user's (its folder)."""
-    return map_path(anatomy.stomach_dir(anatomy_id))
+    return map_path(anatomy.stomach_dir(anatomy_id), version)
 
 
 def arrival_steps(list_name: str, path: Path | None = None, fidelity: str = "fast",
-                  anatomy_id=None) -> dict[int, list[int | None]]:
+                  anatomy_id=None, version: int = CURRENT_VERSION) -> dict[int, list[int | None]]:
     """Step (1-80) at which each listed contact-aided point's recorded demonstrator first comes within the
     success distance, in SE and from each DE load phase (None: not within the trial). The recorded one is
     the demonstrator that came closest, not necessarily the fastest: an upper bound on the time a known
     way there needs, so on how little slack a policy has. In the full stomach (the map is measured in the
     fast one) the same motions show whether, and when, the FEM wall lets the tube get there too."""
-    points, listed = _listed_aided(list_name, path or stomach_map(anatomy_id))
+    points, listed = _listed_aided(list_name, path or stomach_map(anatomy_id, version))
     steps: dict[int, list[int | None]] = {i: [] for i in listed}
-    for run, (task, start, where) in enumerate(_starts(fidelity, list_name, anatomy_id=anatomy_id)):
+    for run, (task, start, where) in enumerate(_starts(fidelity, list_name, anatomy_id=anatomy_id, version=version)):
         for i in listed:
             steps[i].append(replay_demo(task, DEMOS[points[i]["demos"][run]], i, start)[0])
         print(f"  {fidelity} {where}: {len(listed)} demonstrators replayed ({run + 1}/{1 + PHASES})", flush=True)
@@ -450,15 +487,18 @@ def arrival_steps(list_name: str, path: Path | None = None, fidelity: str = "fas
 
 
 def fastest_arrivals(list_name: str, path: Path | None = None, demos: list[int] | None = None,
-                     phases: int = PHASES, env: str = "DE", anatomy_id=None) -> dict[int, list[int | None]]:
-    """Like :func:`arrival_steps`, but the earliest arrival over every demonstrator of ``demos`` (indices
-    into DEMOS; None: all 180), not the recorded one's: the fastest known way to each point from SE and each
-    of ``phases`` starts of ``env`` (DE, or UE1 and UE2's stronger loads). The target is not physical, so
+                     phases: int = PHASES, env: str = "DE", anatomy_id=None, fidelity: str = "fast",
+                     timestep: float | None = None, version: int = CURRENT_VERSION) -> dict[int, list[int | None]]:
+    """Like :func:`arrival_steps`, but the earliest arrival over every demonstrator of ``demos`` (indices into
+    DEMOS; None: all the version's, demos_of), not the recorded one's: the fastest known way to each point from SE
+    and each of ``phases`` starts of ``env`` (DE, or UE1 and UE2's stronger loads), in a fast stomach at its own step or
+    ``timestep`` (the map's classes were measured at the fast stomach's own). The target is not physical, so
     one replay per demonstrator and start measures every listed point."""
-    points, listed = _listed_aided(list_name, path or stomach_map(anatomy_id))
-    demos = list(range(len(DEMOS))) if demos is None else demos
+    points, listed = _listed_aided(list_name, path or stomach_map(anatomy_id, version))
+    demos = list(range(len(demos_of(version)))) if demos is None else demos
     steps: dict[int, list[int | None]] = {i: [] for i in listed}
-    for run, (task, start, where) in enumerate(_starts("fast", list_name, phases, env, anatomy_id)):
+    starts = _starts(fidelity, list_name, phases, env, anatomy_id, timestep, version)
+    for run, (task, start, where) in enumerate(starts):
         rows = np.array([int(np.flatnonzero(task.targets == i)[0]) for i in listed])
         first = np.full(len(listed), TRIAL_STEPS + 1)
         for d in demos:
@@ -500,28 +540,32 @@ def success_by_slack(latest: dict[int, int | None], per_target: Path) -> str:
 
 
 def _slack_report(list_name: str, fidelity: str, fastest: bool = False, per_target: Path | None = None,
-                  phases: int = PHASES, demos: list[int] | None = None, env: str = "DE", anatomy_id=None) -> str:
+                  phases: int = PHASES, demos: list[int] | None = None, env: str = "DE", anatomy_id=None,
+                  timestep: float | None = None, version: int = CURRENT_VERSION) -> str:
     """``slack``'s summary; for the full stomach also each trial's arrival against the fast stomach's; from
-    more start phases than the map's, how many (target, start) pairs a known way reaches at all."""
-    steps = fastest_arrivals(list_name, demos=demos, phases=phases, env=env, anatomy_id=anatomy_id) if fastest \
-        else arrival_steps(list_name, fidelity=fidelity, anatomy_id=anatomy_id)
+    more start phases than the map's or at another physics step, how many (target, start) pairs a known way
+    reaches at all."""
+    steps = fastest_arrivals(list_name, demos=demos, phases=phases, env=env, anatomy_id=anatomy_id,
+                             fidelity=fidelity, timestep=timestep, version=version) if fastest \
+        else arrival_steps(list_name, fidelity=fidelity, anatomy_id=anatomy_id, version=version)
     latest = {i: max(s) if None not in s else None for i, s in steps.items()}
     arrived = np.array([s for s in latest.values() if s is not None])
     which = ("fastest of all demonstrators" if demos is None else f"fastest of {len(demos)} demonstrators") \
         if fastest else "recorded demonstrator"
-    line = (f"list {list_name}, {fidelity} stomach: {len(latest)} contact-aided targets; the {which} arrives "
+    step = "" if timestep is None else f" at a {1000 * timestep:g} ms physics step"
+    line = (f"list {list_name}, {fidelity} stomach{step}: {len(latest)} contact-aided targets; the {which} arrives "
             f"(latest of SE and the {phases} {env} phases) by step {TRIAL_STEPS} at {len(arrived)}")
     if len(arrived):
         line += (f"; median step {np.median(arrived):.0f}, quartiles {np.percentile(arrived, 25):.0f}-"
                  f"{np.percentile(arrived, 75):.0f}, after step 70 at {np.mean(arrived > 70):.0%}")
     lines = [line]
-    if phases != PHASES or env != "DE":
+    if phases != PHASES or env != "DE" or timestep is not None:
         reached = np.array([[a is not None for a in s] for s in steps.values()])
         lines.append(f"(target, start) pairs a known way reaches within the trial: {reached.mean():.1%} of "
                      f"{reached.size}; {env} starts only: {reached[:, 1:].mean():.1%}; targets missed from some start: "
                      f"{(~reached).any(axis=1).sum()}")
-    if fidelity != "fast":
-        fast = arrival_steps(list_name, anatomy_id=anatomy_id)
+    if fidelity != "fast" and not fastest:
+        fast = arrival_steps(list_name, anatomy_id=anatomy_id, version=version)
         pairs = [(a, b) for i in steps for a, b in zip(fast[i], steps[i], strict=True) if a is not None]
         late = np.array([b - a for a, b in pairs if b is not None])
         line = (f"the same motions, {len(pairs)} trials that arrive in the fast stomach: {len(late)} arrive within "
@@ -643,21 +687,23 @@ def list_info(cls: np.ndarray, lists: dict) -> dict:
             "sizes": {k: len(v) for k, v in lists.items()}}
 
 
-def redraw(meta: dict, seed: int) -> dict:
+def redraw(meta: dict, seed: int, version: int = CURRENT_VERSION) -> dict:
     """Draw the lists again from a map's measured classes (no simulation): `python -m mjendo.targets lists`."""
     from mjendo.task import free_targets
 
     st = anatomy.load()
     pts = meta["points"]
     tris, bary = np.array([p["tri"] for p in pts]), np.array([p["bary"] for p in pts])
-    rest = np.einsum("nk,nkd->nd", bary, free_targets("fast", CURRENT_VERSION)[tris])
+    rest = np.einsum("nk,nkd->nd", bary, free_targets("fast", version)[tris])
     cls = np.array([p["class"] for p in pts], dtype=object)
     lists = draw_lists(rest, cls, st, seed)
-    meta["info"].update(list_info(cls, lists), lists_command=f"python -m mjendo.targets lists --seed {seed}")
+    meta["info"].update(list_info(cls, lists), lists_command=f"python -m mjendo.targets lists --seed {seed}"
+                        + ("" if version == CURRENT_VERSION else f" --version {version}"))
     return {**meta, "lists": lists}
 
 
-def make_map(episodes: int, seed: int, progress: bool = True, anatomy_id=None, workers: int = 2) -> dict:
+def make_map(episodes: int, seed: int, progress: bool = True, anatomy_id=None, workers: int = 2,
+             version: int = CURRENT_VERSION) -> dict:
     """Measure every candidate and draw the lists; the content of targets.json.
 
     ``anatomy_id``: another stomach (TaskConfig.anatomy); its map keeps only the listed points' records,
@@ -669,33 +715,35 @@ def make_map(episodes: int, seed: int, progress: bool = True, anatomy_id=None, w
     st = anatomy.load(folder)
     tris, bary = candidates(st)
     t0 = time.time()
-    where = free_targets("fast", CURRENT_VERSION, None if anatomy_id is None else folder)
+    where = free_targets("fast", version, None if anatomy_id is None else folder)
     rest = np.einsum("nk,nkd->nd", bary, where[tris])  # where FE's points float
-    static_mm = to_mm(free_sweep(CURRENT_VERSION, rest, progress, anatomy_id))
+    static_mm = to_mm(free_sweep(version, rest, progress, anatomy_id))
     # Free space reaches further moving than settling (the tube sags over about a second): the free-space
     # distance is the closer of the quasi-static sweep and the same strategies as with the wall, in FE.
-    free_mm = to_mm(free_reach(CURRENT_VERSION, tris, bary, episodes, seed, progress, workers,
+    free_mm = to_mm(free_reach(version, tris, bary, episodes, seed, progress, workers,
                                start=from_mm(static_mm), anatomy_id=anatomy_id))
     # (SE + DE phases, demonstrators, points)
-    demos = wall_reach(CURRENT_VERSION, tris, bary, seed, progress, workers, anatomy_id=anatomy_id)
+    demos = wall_reach(version, tris, bary, seed, progress, workers, anatomy_id=anatomy_id)
     per_run = to_mm(demos.min(1))
     wall_mm, phase_mm = per_run[0], per_run[1:].max(0)
     which = demos.argmin(1)  # the demonstrator that comes closest, per run and point
     cls = classify(free_mm, wall_mm, phase_mm)
     aided = np.flatnonzero(cls == "contact_aided")
     naive_mm = np.full(len(tris), np.nan)
-    naive_mm[aided] = to_mm(naive_reach(CURRENT_VERSION, tris, bary, aided, seed, progress, workers,
+    naive_mm[aided] = to_mm(naive_reach(version, tris, bary, aided, seed, progress, workers,
                                         anatomy_id=anatomy_id)[aided])
     lists = draw_lists(rest, cls, st, seed)
     if anatomy_id is not None:
         lists["F"] = sorted(lists["F"][:MAX_FREE_OTHER])
     counts = {c: int(np.sum(cls == c)) for c in ("free", "between", "contact_aided", "out_of_reach")}
     info = {
+        "physics_step_s": fidelity_preset("fast", version).timestep_s,
         "rule": (f"free: free-space distance < {FREE_MM} mm; contact_aided: >= {CONTACT_AIDED_MM} mm and reached "
                  f"with the wall within {PAPER_SUCCESS_MM} mm within {TRIAL_STEPS} steps by a demonstrator, in SE "
                  f"and from each of {PHASES} DE load phases; listed points at least {SPACING_MM} mm apart"),
         "command": f"python -m mjendo.targets map --episodes {episodes} --seed {seed}"
-                   + ("" if anatomy_id is None else f" --anatomy {anatomy_id}"),
+                   + ("" if anatomy_id is None else f" --anatomy {anatomy_id}")
+                   + ("" if version == CURRENT_VERSION else f" --version {version}"),
         "classes": counts,
         "seconds": round(time.time() - t0, 1),
         **list_info(cls, lists),
@@ -711,7 +759,7 @@ def make_map(episodes: int, seed: int, progress: bool = True, anatomy_id=None, w
     if anatomy_id is not None:
         listed = {i for v in lists.values() for i in v}
         points = [p for p in points if p["id"] in listed]
-    return {"version": CURRENT_VERSION, "info": info, "lists": lists, "points": points}
+    return {"version": version, "info": info, "lists": lists, "points": points}
 
 
 def figure(out: Path, path: Path = TARGETS_FILE) -> Path:
@@ -738,21 +786,21 @@ def write_map(meta: dict, out: Path) -> None:
         Path(out).write_text(text)
 
 
-def benchmark_maps(name: str, episodes: int, seed: int, workers: int = 2) -> None:
+def benchmark_maps(name: str, episodes: int, seed: int, workers: int = 2, version: int = CURRENT_VERSION) -> None:
     """The maps of a benchmark set's stomachs, each committed with its stomach under models/anatomies/seed-N/.
 
     Resumable: a stomach whose map exists is skipped, so a stopped run goes on where it stopped.
     """
     for k in ANATOMY_SETS[name]:
         folder = paths.ANATOMIES_DIR / f"seed-{k}"
-        if map_path(folder).exists():
+        if map_path(folder, version).exists():
             print(f"{folder}: map exists, skipped", flush=True)
             continue
         if not (folder / "stomach.json").exists():
             anatomy.save(anatomy.generate(k), folder)
         t0 = time.time()
-        meta = make_map(episodes, seed, progress=False, anatomy_id=k, workers=workers)
-        write_map(meta, folder / f"{MAP_NAME}.gz")
+        meta = make_map(episodes, seed, progress=False, anatomy_id=k, workers=workers, version=version)
+        write_map(meta, folder / f"{map_name(version)}.gz")
         sizes = ", ".join(f"{n} {len(v)}" for n, v in meta["lists"].items())
         print(f"{folder}: {meta['info']['classes']}, lists {sizes} ({time.time() - t0:.0f} s)", flush=True)
 
@@ -778,14 +826,22 @@ def main(argv: list[str] | None = None) -> int:
                    f"a benchmark set ({', '.join(ANATOMY_SETS)}: every stomach of it, into models/anatomies/)")
     m.add_argument("--out", type=Path, help="default: targets.json in the stomach's folder")
     m.add_argument("--workers", type=int, default=2, help="processes (the map does not depend on their number)")
+    version_help = (f"task version (default {CURRENT_VERSION}): its physics decides which points are reachable, "
+                    "and each version has its own map (map_name)")
+    map_versions = sorted(v for v in VERSIONS if v >= 1)  # version 0's targets are lumen vertices, no map
+    m.add_argument("--version", type=int, default=CURRENT_VERSION, choices=map_versions, help=version_help)
     f = sub.add_parser("figure", help="free-space workspaces (versions 0 and 1) and the classified points")
     f.add_argument("--out", type=Path, default=paths.DATA / "docs" / "media" / "targets.png")
     sl = sub.add_parser("slack", help="the step at which each listed contact-aided target's demonstrator arrives")
     sl.add_argument("--list", default="A", choices=("A", "B"))
+    sl.add_argument("--version", type=int, default=CURRENT_VERSION, choices=map_versions, help=version_help)
     sl.add_argument("--fidelity", default="fast", choices=tuple(FIDELITIES),
                     help="full: the same motions in the FEM stomach (about 40 min on one core)")
-    sl.add_argument("--fastest", action="store_true", help="the earliest arrival over all 180 demonstrators, "
-                    "not the recorded one's (fast stomach; up to 900 trials of 80 steps)")
+    sl.add_argument("--fastest", action="store_true", help="the earliest arrival over all the version's "
+                    f"demonstrators ({V1_DEMOS} for version 1, {len(DEMOS)} from version 2), "
+                    "not the recorded one's (a fast stomach; up to 900 trials of 80 steps)")
+    sl.add_argument("--timestep", type=float, help="with --fastest, the physics step (s) instead of the "
+                    "stomach's own: is the map's contact-aided class a property of the step it was measured at")
     sl.add_argument("--per-target", type=Path, help="a study's per_target.csv: its success on these targets "
                     "by how late the known way arrives")
     sl.add_argument("--phases", type=int, default=PHASES, help=f"start phases of --env, evenly spaced over the load "
@@ -793,7 +849,7 @@ def main(argv: list[str] | None = None) -> int:
     sl.add_argument("--env", default="DE", choices=("DE", "UE1", "UE2"), help="with --fastest, the moving stomach "
                     "whose phases to start from (the map checked DE)")
     sl.add_argument("--recorded-demos", action="store_true", help="with --fastest, race only the demonstrators "
-                    "the map recorded for the list's targets instead of all 180")
+                    "the map recorded for the list's targets instead of all the version's")
     sl.add_argument("--anatomy", type=anatomy_arg, help="another stomach (a generated one's seed or a built "
                     f"folder), or with --ceiling a benchmark set ({', '.join(ANATOMY_SETS)})")
     sl.add_argument("--ceiling", action="store_true", help="per stomach, the share of the list a known way "
@@ -809,7 +865,8 @@ def main(argv: list[str] | None = None) -> int:
                     "placed as at that phase but not moving during the trial")
     d = sub.add_parser("lists", help="draw lists F, A and B again from the map's measured classes (no simulation)")
     d.add_argument("--seed", type=int, default=0)
-    d.add_argument("--out", type=Path, default=TARGETS_FILE)
+    d.add_argument("--version", type=int, default=CURRENT_VERSION, choices=map_versions, help=version_help)
+    d.add_argument("--out", type=Path, help="default: the built-in stomach's map of --version")
     args = ap.parse_args(argv)
 
     def command() -> None:
@@ -819,9 +876,12 @@ def main(argv: list[str] | None = None) -> int:
         if args.cmd == "slack":
             from mjendo.task import PHASES_PER_CYCLE
 
-            if args.fastest and args.fidelity != "fast":
-                raise ConfigError("--fastest replays the demonstrators in the fast stomach, where the map "
-                                  "measured them: drop --fidelity full or --fastest")
+            if args.fastest and args.fidelity == "full":
+                raise ConfigError("--fastest races up to 900 trials of 80 steps, hours in the FEM stomach: give a "
+                                  "fast --fidelity (fast, fast-compliant, fast-coarse) or drop --fastest")
+            if args.timestep is not None and not args.fastest:
+                raise ConfigError("--timestep goes with --fastest (the recorded demonstrators were chosen at the "
+                                  "stomach's own step): add --fastest")
             for given, name in ((args.per_target, "per_target.csv"), (args.per_anatomy, "per_anatomy.csv")):
                 if given is not None and not given.is_file():
                     raise ConfigError(f"{given} does not exist: give the {name} a study wrote "
@@ -839,9 +899,9 @@ def main(argv: list[str] | None = None) -> int:
             if not args.fastest and (args.phases != PHASES or args.recorded_demos or args.env != "DE"):
                 raise ConfigError(f"the map recorded a demonstrator for {PHASES} DE phases only: add --fastest to "
                                   "race demonstrators from other phases, loads or a subset of them")
-            demos = recorded_demos(args.list, stomach_map(args.anatomy)) if args.recorded_demos else None
+            demos = recorded_demos(args.list, stomach_map(args.anatomy, args.version)) if args.recorded_demos else None
             print(_slack_report(args.list, args.fidelity, args.fastest, args.per_target, args.phases, demos,
-                                args.env, args.anatomy))
+                                args.env, args.anatomy, args.timestep, args.version))
             return
         if args.cmd == "open-loop":
             closest = open_loop(args.list, args.env, args.phases, args.hold_load)
@@ -854,13 +914,16 @@ def main(argv: list[str] | None = None) -> int:
                   f"approach median {np.median(closest):.2f} mm, 90th percentile {np.percentile(closest, 90):.2f} mm")
             return
         if args.cmd == "map" and isinstance(args.anatomy, str) and args.anatomy in ANATOMY_SETS:
-            benchmark_maps(args.anatomy, args.episodes, args.seed, args.workers)
+            benchmark_maps(args.anatomy, args.episodes, args.seed, args.workers, args.version)
             return
         if args.cmd == "map":
-            meta = make_map(args.episodes, args.seed, anatomy_id=args.anatomy, workers=args.workers)
-            args.out = args.out or map_path(anatomy.stomach_dir(args.anatomy))
+            meta = make_map(args.episodes, args.seed, anatomy_id=args.anatomy, workers=args.workers,
+                            version=args.version)
+            args.out = args.out or (targets_file(args.version) if args.anatomy is None
+                                    else map_path(anatomy.stomach_dir(args.anatomy), args.version))
         else:
-            meta = redraw(read_map(args.out) if args.out.exists() else load_error(args.out), args.seed)
+            args.out = args.out or targets_file(args.version)
+            meta = redraw(read_map(args.out) if args.out.exists() else load_error(args.out), args.seed, args.version)
         write_map(meta, args.out)
         print(json.dumps(meta["info"], indent=1))
         print(f"wrote {args.out}: lists " + ", ".join(f"{k} {len(v)}" for k, v in meta["lists"].items()))

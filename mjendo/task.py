@@ -115,7 +115,7 @@ class NavigationTask:
         stomach = None if c.anatomy is None else self.stomach_dir
         self.sim = Simulator(c.env, c.fidelity, version=c.version, stomach=stomach, timestep=c.timestep_s)
         self.stomach = anatomy.load(self.stomach_dir)
-        table = table or targets.load(c.version, targets.map_path(self.stomach_dir))
+        table = table or targets.load(c.version, targets.map_path(self.stomach_dir, c.version))
         listname = c.target_list or default_target_list(c.env, c.version)
         self.target_list = listname
         self.targets = np.array(table.listed(listname), dtype=np.int64)

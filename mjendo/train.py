@@ -109,7 +109,7 @@ def target_sampler(cfg: TrainConfig, run: Path | None = None) -> TargetSampler:
     name = cfg.train_targets or task.target_list or default_target_list(task.env, task.version)
     if len(anatomy.members(task.anatomy)) > 1:  # each stomach's task draws its own list (and pool weights)
         return TargetSampler([], [], cfg.target_sampling, cfg.curriculum_steps)
-    table = targets.load(task.version, targets.map_path(anatomy.stomach_dir(task.anatomy)))
+    table = targets.load(task.version, targets.map_path(anatomy.stomach_dir(task.anatomy), task.version))
     listed = table.listed(name)
     sampler = TargetSampler(listed, table.contact_aided(listed), cfg.target_sampling, cfg.curriculum_steps,
                             base=table.pool_weights(name))

@@ -84,6 +84,19 @@ def test_a_trilinear_grid_without_a_load_calibration_is_refused(monkeypatch):
     assert fidelity_preset("fast").load_gains == pytest.approx((2.85, 2.91, 2.98))
 
 
+def test_version_2_steps_every_stomach_at_the_full_ones_10_ms_and_moves_the_wall_as_version_1():
+    # Version 2 is version 1 with the fast stomachs at the FEM one's step (config.VERSIONS): its load gains are
+    # rescaled so the breathing load moves the targets as far as version 1's calibrated gains do at 20 ms.
+    from mjendo.fidelity import motion_summary
+
+    assert Simulator("DE", "full", version=2).model.opt.timestep == 0.01
+    for name in ("fast", "fast-coarse"):
+        assert Simulator("DE", name, version=1).model.opt.timestep == 0.02
+        assert Simulator("DE", name, version=2).model.opt.timestep == 0.01
+        old, new = (motion_summary("DE", fidelity_preset(name, v)) for v in (1, 2))
+        assert new["median_mm"] == pytest.approx(old["median_mm"], rel=0.03), (name, old, new)
+
+
 def test_unusable_physics_parameters_are_rejected_with_the_fix(tmp_path, monkeypatch):
     # With the presets' 1000 iterations the M + hD + h^2 K solve converges even at 1 TPa; an
     # iteration cap too low for a stiff wall is what leaves it under-converged.

@@ -8,19 +8,26 @@ import pytest
 from scipy.optimize import minimize
 
 from mjendo import targets
-from mjendo.config import CURRENT_VERSION
+from mjendo.config import CURRENT_VERSION, VERSIONS, fidelity_preset
 from mjendo.sim import Simulator
 from mjendo.task import NavigationTask, free_targets
 
-MAP = targets.load()
-POINTS = {p["id"]: p for p in targets.read_map(targets.TARGETS_FILE)["points"]}
+MAP_VERSIONS = sorted(v for v in VERSIONS if v >= 1)  # each task version from 1 has its own map
+MAPS = {v: targets.read_map(targets.targets_file(v)) for v in MAP_VERSIONS}
+TABLES = {v: targets.load(v) for v in MAP_VERSIONS}
+POINTS_OF = {v: {p["id"]: p for p in MAPS[v]["points"]} for v in MAP_VERSIONS}
+MAP, POINTS = TABLES[CURRENT_VERSION], POINTS_OF[CURRENT_VERSION]
 
 
-def test_classes_follow_the_rule_and_lists_are_drawn_from_them():
+@pytest.mark.parametrize("version", MAP_VERSIONS)
+def test_classes_follow_the_rule_and_lists_are_drawn_from_them(version):
     def near(x, edge):  # the file keeps two decimals: a value rounded onto a boundary may be either side
         return abs(x - edge) <= 0.005
 
-    for p in POINTS.values():
+    table, points = TABLES[version], POINTS_OF[version]
+    # measured at the version's own physics step (version 1's map predates the field: 20 ms, its step)
+    assert MAPS[version]["info"].get("physics_step_s", 0.02) == fidelity_preset("fast", version).timestep_s
+    for p in points.values():
         free, wall, phase = p["free_mm"], p["wall_mm"], p["phase_mm"]
         if near(free, 3) or near(free, 10) or near(wall, 3) or near(phase, 3):
             continue
@@ -28,23 +35,24 @@ def test_classes_follow_the_rule_and_lists_are_drawn_from_them():
                     "contact_aided" if wall < 3 and phase < 3 else "out_of_reach")
         assert p["class"] == expected, p
         assert (p["demos"] is not None) == (p["class"] == "contact_aided"), p
-    a, b, f = (set(MAP.lists[k]) for k in "ABF")
+    a, b, f = (set(table.lists[k]) for k in "ABF")
     assert not (a & b) and len(b) >= 50 and len(a) >= len(b)
-    assert all(POINTS[i]["class"] in ("free", "contact_aided") for i in a | b)
-    assert all(POINTS[i]["class"] == "free" for i in f)
+    assert all(points[i]["class"] in ("free", "contact_aided") for i in a | b)
+    assert all(points[i]["class"] == "free" for i in f)
     for name in "AB":  # at least 60 % of each list needs the wall (free-space distance >= 10 mm)
-        share = np.mean([POINTS[i]["free_mm"] >= 10 for i in MAP.lists[name]])
+        share = np.mean([points[i]["free_mm"] >= 10 for i in table.lists[name]])
         assert share >= 0.6, (name, share)
 
 
-def replay(name: str, point: int, run: int) -> float:
+def replay(name: str, point: int, run: int, version: int = CURRENT_VERSION) -> float:
     """Closest approach (mm) of the demonstrator the map recorded for ``point`` in ``run`` (0: SE, k: DE phase k)."""
     env = "SE" if run == 0 else "DE"
-    task = NavigationTask(env=env, target_list=name, max_steps=targets.TRIAL_STEPS, randomize_phase=False)
+    task = NavigationTask(env=env, target_list=name, max_steps=targets.TRIAL_STEPS, randomize_phase=False,
+                          version=version)
     phase = None if run == 0 else (run - 1) * len(task.start_states) // targets.PHASES
     task.reset(np.random.default_rng(0), phase)
     task.set_target(point)
-    demo = targets.DEMOS[POINTS[point]["demos"][run]]
+    demo = targets.DEMOS[POINTS_OF[version][point]["demos"][run]]
     closest = np.inf
     for k in range(targets.TRIAL_STEPS):
         res = task.step(targets.demo_action(demo, k))
@@ -54,23 +62,26 @@ def replay(name: str, point: int, run: int) -> float:
     return closest
 
 
-def aided(name: str) -> list[int]:
-    return [i for i in MAP.lists[name] if POINTS[i]["class"] == "contact_aided"]
+def aided(name: str, version: int = CURRENT_VERSION) -> list[int]:
+    return [i for i in TABLES[version].lists[name] if POINTS_OF[version][i]["class"] == "contact_aided"]
 
 
+@pytest.mark.parametrize("version", MAP_VERSIONS)
 @pytest.mark.parametrize("name", ["A", "B"])
-def test_listed_contact_aided_targets_are_reached_in_a_trial_by_their_recorded_demonstrators(name):
+def test_listed_contact_aided_targets_are_reached_in_a_trial_by_their_recorded_demonstrators(name, version):
     # The map's promise, replayed through the task itself: a sample of each list's contact-aided targets, in SE
     # and from one load phase of DE (every target and phase: the slow tier).
-    for j, point in enumerate(aided(name)[::12]):
+    for j, point in enumerate(aided(name, version)[::12]):
         for run in (0, 1 + j % targets.PHASES):
-            assert replay(name, point, run) < 3.0, (name, point, run)
+            assert replay(name, point, run, version) < 3.0, (name, point, run)
 
 
 @pytest.mark.slow
+@pytest.mark.parametrize("version", MAP_VERSIONS)
 @pytest.mark.parametrize("name", ["A", "B"])
-def test_every_listed_contact_aided_target_is_reached_from_every_start(name):
-    misses = [(p, r) for p in aided(name) for r in range(1 + targets.PHASES) if replay(name, p, r) >= 3.0]
+def test_every_listed_contact_aided_target_is_reached_from_every_start(name, version):
+    misses = [(p, r) for p in aided(name, version) for r in range(1 + targets.PHASES)
+              if replay(name, p, r, version) >= 3.0]
     assert not misses
 
 
@@ -90,8 +101,8 @@ def test_listed_targets_are_on_the_lumen_and_move_with_the_wall():
 class FreeSpace:
     """The tip's settled position in free space for (insertion, bending direction, bending magnitude)."""
 
-    def __init__(self):
-        self.sim = Simulator("FE", version=CURRENT_VERSION)
+    def __init__(self, version: int = CURRENT_VERSION):
+        self.sim = Simulator("FE", version=version)
         self.pull_max = float(self.sim.cable_pull_max[0])
         self.steps = int(round(0.5 / self.sim.model.opt.timestep))
 
@@ -104,24 +115,26 @@ class FreeSpace:
         return self.sim.tip_pos()
 
 
+@pytest.mark.parametrize("version", MAP_VERSIONS)
 @pytest.mark.parametrize("name", ["A", "B"])
-def test_contact_aided_targets_are_out_of_free_space_reach_by_an_independent_search(name):
+def test_contact_aided_targets_are_out_of_free_space_reach_by_an_independent_search(name, version):
     # Not the map's sweep: a coarse grid then Nelder-Mead over insertion, direction and magnitude, settling
     # from straight for every pose. It must not bring the tip within 10 mm of any contact-aided target
     # (a 1 mm allowance for the two searches' different paths into the same pose).
-    space = FreeSpace()
-    rest = free_targets("fast", CURRENT_VERSION)
-    aided = [i for i in MAP.lists[name] if POINTS[i]["class"] == "contact_aided"]
-    pts = MAP.positions(rest, aided)
+    space = FreeSpace(version)
+    rest = free_targets("fast", version)
+    points = POINTS_OF[version]
+    listed = aided(name, version)
+    pts = TABLES[version].positions(rest, listed)
     grid = [np.array([q, d, m]) for q in np.linspace(0, 0.16, 5) for d in np.linspace(0, 2 * np.pi, 8,
                                                                                          endpoint=False)
             for m in (0.0, 0.5, 1.0)]
     tips = np.array([space.tip(x) for x in grid])
-    for i, p in zip(aided, pts, strict=True):
+    for i, p in zip(listed, pts, strict=True):
         x0 = grid[int(np.argmin(np.linalg.norm(tips - p, axis=1)))]
         res = minimize(lambda x, p=p: np.linalg.norm(space.tip(x) - p), x0, method="Nelder-Mead",
                        options={"maxfev": 40, "initial_simplex": np.vstack([x0, x0 + np.diag([0.01, 0.4, 0.2])])})
-        assert res.fun * 1e3 >= 9.0, (i, res.fun * 1e3, POINTS[i]["free_mm"])
+        assert res.fun * 1e3 >= 9.0, (i, res.fun * 1e3, points[i]["free_mm"])
 
 
 def test_a_missing_target_table_says_how_to_make_it(tmp_path):
@@ -242,7 +255,9 @@ def test_success_by_slack_weighs_each_target_by_its_trials(tmp_path):
 def test_slack_refuses_what_it_cannot_measure_before_replaying_anything(tmp_path, capsys):
     # Both refusals come before any simulation: one line naming the problem and the fix, exit status 2.
     assert targets.main(["slack", "--fastest", "--fidelity", "full"]) == 2
-    assert "--fastest replays the demonstrators in the fast stomach" in capsys.readouterr().err
+    assert "hours in the FEM stomach: give a fast --fidelity" in capsys.readouterr().err
+    assert targets.main(["slack", "--timestep", "0.01"]) == 2
+    assert "--timestep goes with --fastest" in capsys.readouterr().err
     assert targets.main(["slack", "--per-target", str(tmp_path / "missing.csv")]) == 2
     assert "missing.csv does not exist: give the per_target.csv a study wrote" in capsys.readouterr().err
     for args in (["--phases", "8"], ["--env", "UE2"], ["--recorded-demos"]):

@@ -339,15 +339,22 @@ def _git_commit() -> str:
 
 def write_report(rows: list[dict], out: Path, command: str, wall_s: float, n: int, fidelity: str = "fast",
                  made: list | None = None, classes: list[dict] | None = None, anatomy=None,
-                 steps: int = PAPER_EVAL_STEPS, randomization=None, timestep: float | None = None) -> Path:
-    """report.md: ours next to the paper's tables, then every figure embedded with its caption."""
+                 steps: int = PAPER_EVAL_STEPS, randomization=None, timestep: float | None = None,
+                 versions: tuple[int, ...] = (CURRENT_VERSION,)) -> Path:
+    """report.md: ours next to the paper's tables, then every figure embedded with its caption.
+
+    ``versions``: the task versions the controllers acted in, each with its own physics step in the fast stomachs.
+    """
+    step = ", ".join(f"{1000 * (timestep or fidelity_preset(fidelity, v).timestep_s):g} ms"
+                     + (f" (task version {v})" if len(versions) > 1 or v != CURRENT_VERSION else "")
+                     for v in versions)
     lines = [
         "# mjendo evaluation vs the paper",
         "",
         f"Stomach: {FIDELITIES[fidelity].description} (`fidelity={fidelity}`)"
         + ("" if anatomy is None else f", anatomy `{anatomy}` (trials spread evenly over its stomachs)")
         + ("" if randomization is None else f", randomized per trial (`{json.dumps(randomization)}`)")
-        + f", physics step {1000 * (timestep or fidelity_preset(fidelity).timestep_s):g} ms"
+        + f", physics step {step}"
         + ("" if timestep is None else " (not the stomach's own)") + ".  ",
         f"Command: `{command}`  ",
         f"Commit: `{_git_commit()}`, wall time {wall_s / 60:.1f} min, {n} trials per cell, {steps} steps each "
@@ -445,6 +452,8 @@ def evaluate(trials: int = 200, controllers=CONTROLLERS, workers: int = 2, out: 
     """
     from tqdm import tqdm
 
+    from mjendo.policies import version_of
+
     if trials < 1 or workers < 1 or seed < 0 or steps < 1:
         raise ConfigError("--trials, --workers and --trial-steps must be >= 1 and --seed >= 0 "
                           f"(got {trials}, {workers}, {steps}, {seed})")
@@ -480,8 +489,9 @@ def evaluate(trials: int = 200, controllers=CONTROLLERS, workers: int = 2, out: 
     from mjendo import figures
 
     made = figures.all_figures(rows, tip_paths, out, [asdict(t) for t in all_trials], steps)
+    versions = tuple(sorted({version_of(c, version) for c, _ in study}))
     report = write_report(rows, out, command, wall, trials, fidelity, made, by_class(all_trials), anatomy, steps,
-                          randomization, timestep)
+                          randomization, timestep, versions)
     print(report.read_text())
     print(f"wrote {out} in {wall / 60:.1f} min")
     return {"rows": rows, "wall_s": wall}

@@ -91,6 +91,8 @@ def test_a_run_folder_is_evaluated_like_a_shipped_policy(tmp_path):
     res = evaluate(trials=1, controllers=(str(run),), workers=1, out=tmp_path / "out", envs=("DE",))
     (row,) = res["rows"]
     assert row["controller"] == str(run) and row["error"] == "" and row["trials"] == 1
+    # the report names the step of the version the policy acted in (version 0's fast stomach: 10 ms), not 20 ms
+    assert "physics step 10 ms (task version 0)." in (tmp_path / "out" / "report.md").read_text()
     with pytest.raises(ConfigError, match="holds no model.zip"):
         evaluate(trials=1, controllers=(str(tmp_path),), workers=1, out=tmp_path / "x")
 

@@ -36,6 +36,7 @@ import numpy as np
 
 from mjendo import anatomy, scene
 from mjendo.config import (
+    CURRENT_VERSION,
     FIDELITIES,
     PAPER_EVAL_STEPS,
     PAPER_SUCCESS_MM,
@@ -340,18 +341,20 @@ def spikes(version: int, episodes: int = 20, seed: int = 0, env: str = "DE", pus
 
 
 def tip_tracks(fidelity: str, list_name: str = "A", solimp: tuple[float, ...] | None = None,
-               demos: list[int] | None = None) -> tuple[np.ndarray, dict[tuple[int, int], int | None]]:
+               demos: list[int] | None = None, version: int = CURRENT_VERSION,
+               ) -> tuple[np.ndarray, dict[tuple[int, int], int | None]]:
     """Each recorded SE demonstrator of the list's contact-aided points (or ``demos``) replayed open loop in
     a stomach: the tip's path (demonstrator, step, xyz in mm) and, per (demonstrator, point), the step at
     which it comes within the success distance (None: not within the trial). ``solimp``: a candidate
-    impedance of the scope-wall contact in place of the scene's."""
+    impedance of the scope-wall contact in place of the scene's. ``version``: the task version, whose map
+    (its lists and recorded demonstrators) and physics step both stomachs run."""
     from mjendo import targets
     from mjendo.task import NavigationTask
 
-    pairs = targets.static_demos(list_name)
+    pairs = targets.static_demos(list_name, targets.targets_file(version))
     demos = sorted({d for d, _ in pairs}) if demos is None else demos
     task = NavigationTask(env="SE", target_list=list_name, max_steps=10**6, randomize_phase=False,
-                          fidelity=fidelity)
+                          fidelity=fidelity, version=version)
     if solimp is not None:
         task.sim.set_contact_solimp(solimp)
     tips = np.zeros((len(demos), targets.TRIAL_STEPS, 3))
@@ -371,12 +374,12 @@ def tip_tracks(fidelity: str, list_name: str = "A", solimp: tuple[float, ...] | 
 
 
 def track_comparison(candidate: str, reference: str = "full", list_name: str = "A",
-                     solimp: tuple[float, ...] | None = None) -> dict:
+                     solimp: tuple[float, ...] | None = None, version: int = CURRENT_VERSION) -> dict:
     """How far a stomach's tip paths lie from the reference's under the same motions (mm: mean, median and
     90th percentile over every step, mean over the last half of the trial), and how many (demonstrator,
     point) pairs arrive in each and arrive in one but not the other."""
-    a_tips, a = tip_tracks(candidate, list_name, solimp)
-    b_tips, b = tip_tracks(reference, list_name)
+    a_tips, a = tip_tracks(candidate, list_name, solimp, version=version)
+    b_tips, b = tip_tracks(reference, list_name, version=version)
     dev = np.linalg.norm(a_tips - b_tips, axis=2)
     half = dev.shape[1] // 2
     return {"pairs": len(a), "mean_mm": float(dev.mean()), "median_mm": float(np.median(dev)),
@@ -510,7 +513,6 @@ def list_motion(env: str, version: int | None = None) -> dict:
     """How far the env's listed targets move between the two load states (mm): where each settles in the
     second half of each half cycle (mean over the task's phase snapshots there), median and 90th percentile.
     """
-    from mjendo.config import CURRENT_VERSION
     from mjendo.task import NavigationTask
 
     task = NavigationTask(env=env, version=CURRENT_VERSION if version is None else version)
@@ -563,6 +565,8 @@ def main(argv: list[str] | None = None) -> int:
                         "under the same motions (about 12 min on one core, 11 of them the full stomach)")
     tr.add_argument("--fidelity", choices=[f for f in FIDELITIES if f != "full"], default="fast-compliant")
     tr.add_argument("--list", default="A", choices=("A", "B"))
+    tr.add_argument("--version", type=int, default=CURRENT_VERSION, choices=sorted(VERSIONS),
+                    help="the task version: its map's demonstrators and its physics step (version 2: 10 ms in both)")
     pt = sub.add_parser("policy-tracks", parents=[impedance], help="a policy's closed-loop trials in the full "
                         "stomach replayed in a fast one: tip, target and force apart under the policy's own motions")
     pt.add_argument("--policy", required=True, help="a policy spec, e.g. models/policies/variants/E-paired")
@@ -575,7 +579,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     solimp = tuple(args.solimp) if getattr(args, "solimp", None) else None
     if args.cmd == "tracks":
-        print(_line(track_comparison(args.fidelity, "full", args.list, solimp)))
+        print(_line(track_comparison(args.fidelity, "full", args.list, solimp, args.version)))
         return 0
     if args.cmd == "policy-tracks":
         from mjendo import cli

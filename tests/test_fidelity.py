@@ -157,6 +157,16 @@ def test_the_compliant_fast_stomach_puts_the_tip_where_the_fem_wall_does():
     assert b.flex_solimp[0, 0] < a.flex_solimp[0, 0]
 
 
+def test_tracks_of_a_later_version_replay_its_own_demonstrators():
+    # Version 2's map recorded demonstrators version 1's does not race (indices from 180 on), at its 10 ms step:
+    # replayed in version 2's fast stomach one reaches the point it was recorded for.
+    from mjendo import targets
+
+    d, point = next((d, i) for d, i in targets.static_demos("A", targets.targets_file(2)) if d >= targets.V1_DEMOS)
+    tips, arrivals = fidelity.tip_tracks("fast", demos=[d], version=2)
+    assert arrivals[d, point] is not None and tips.shape == (1, targets.TRIAL_STEPS, 3)
+
+
 def test_a_policys_actions_replayed_open_loop_retrace_its_trial():
     # policy-tracks compares stomachs under a policy's own motions by replaying its closed-loop actions; that
     # rests on a replay retracing the trial it came from, and on the figures seeing a changed stomach.

@@ -33,7 +33,7 @@ from mjendo.config import (
 )
 from mjendo.scene import solver_id
 from mjendo.sim import MAX_SPEED, oesophagus_share
-from mjendo.task import NavigationTask
+from mjendo.task import OBS_OPTIONS, NavigationTask
 
 
 def _require():
@@ -142,9 +142,9 @@ class BatchedNavigation:
         if self.cfg.randomization is not None:
             raise ConfigError("randomization (per-episode tissue, load and noise) is not available in the batched "
                               "backend: train such a policy with --backend cpu")
-        if self.cfg.scope_obs or self.cfg.time_obs or self.cfg.phase_obs or self.cfg.step_obs:
-            raise ConfigError("scope_obs, time_obs, phase_obs and step_obs are not available in the batched backend: "
-                              "train such a policy with --backend cpu")
+        if any(getattr(self.cfg, k) for k in OBS_OPTIONS if k != "force_obs"):
+            raise ConfigError("scope_obs, time_obs, phase_obs, step_obs and history_obs are not available in the "
+                              "batched backend: train such a policy with --backend cpu")
         self.core = NavigationTask(self.cfg)  # the MDP's constants: start states, targets, frame, scales
         core, m = self.core, self.core.sim.model
         self.wp_device = device or ("cuda:0" if wp.is_cuda_available() else "cpu")

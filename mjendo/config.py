@@ -515,6 +515,9 @@ PAPER_EVAL_STEPS = 80  # paper: evaluation trial length
 # per second. Version 1 caps insertion at 25 mm/s and the cable stroke at 4 mm/s (full bending in
 # about 2.3 s, 65 degrees/s), and controls at 10 Hz: an 80-step trial lasts 8 s, two breathing cycles.
 CONTROL_PERIOD_S = 0.1
+# Observations a history_obs policy sees besides the current one (TaskConfig.history_obs): four, as Atari's
+# frame stacks; at 10 Hz the last 0.4 s, a tenth of a breathing cycle.
+HISTORY_STEPS = 4
 INSERTION_MM_PER_S = 25.0
 CABLE_MM_PER_S = 4.0
 # A safety-limited feeder: the insertion servo pushes with 3 N at most. With the 10 N of version 0 a scope
@@ -613,6 +616,10 @@ class TaskConfig:
     # the tip's displacement over it. A memoryless policy then sees how far its last command moved the tip, the
     # local gain of its actions, which the wall's give changes from stomach to stomach (not the paper's).
     step_obs: bool = False
+    # The last HISTORY_STEPS observations before this one, newest first (frame stacking, as Mnih et al. 2015,
+    # Nature 518: 529, stack four frames). A memoryless policy sees the wall only where the tip touches it now; a
+    # stomach it has not seen shows its shape and give in how force and tip moved under the last commands.
+    history_obs: bool = False
     target_list: str | None = None  # None: the environment's own list (A or B); "A+F": lists joined
     max_steps: int = PAPER_TRAIN_STEPS
     version: int = CURRENT_VERSION  # task version (VERSIONS): scope, gravity, time scales, targets
@@ -671,7 +678,7 @@ def task_config(**kw) -> TaskConfig:
     ver = task_version(int(cfg.version))
     cfg = replace(cfg, version=int(cfg.version), **{k: getattr(ver, k) for k in ACTION_SCALES
                                                     if getattr(cfg, k) is None})
-    for name in ("force_obs", "scope_obs", "time_obs", "phase_obs", "step_obs", "randomize_phase"):
+    for name in ("force_obs", "scope_obs", "time_obs", "phase_obs", "step_obs", "history_obs", "randomize_phase"):
         if not isinstance(getattr(cfg, name), bool | np.bool_):
             raise ConfigError(f"{name} must be True or False, not {getattr(cfg, name)!r}")
     parts = cfg.target_list.split("+") if isinstance(cfg.target_list, str) else [cfg.target_list]
@@ -695,7 +702,8 @@ def task_config(**kw) -> TaskConfig:
     if cfg.anatomy is not None:
         _anatomy(cfg)
     cfg = replace(cfg, force_obs=bool(cfg.force_obs), scope_obs=bool(cfg.scope_obs), time_obs=bool(cfg.time_obs),
-                  phase_obs=bool(cfg.phase_obs), step_obs=bool(cfg.step_obs), randomize_phase=bool(cfg.randomize_phase),
+                  phase_obs=bool(cfg.phase_obs), step_obs=bool(cfg.step_obs), history_obs=bool(cfg.history_obs),
+                  randomize_phase=bool(cfg.randomize_phase),
                   max_steps=int(cfg.max_steps))
     substeps(cfg)
     return cfg

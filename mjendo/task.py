@@ -19,6 +19,7 @@ from mjendo import anatomy, mdp, targets
 from mjendo.config import (
     ACTION_SIZE,
     CURRENT_VERSION,
+    HISTORY_STEPS,
     PAPER_ACTION_LIMIT,
     PAPER_EXIT_X_MM,
     TaskConfig,
@@ -45,8 +46,11 @@ TIME_BLOCKS = [("time_left", 1, "share of max_steps", (0.0, 1.0))]
 PHASE_BLOCKS = [("load_phase", 2, "sin, cos of the breathing cycle's phase", (-1.0, 1.0))]
 STEP_BLOCKS = [("previous_cable_actions", 4, "action units", (-PAPER_ACTION_LIMIT, PAPER_ACTION_LIMIT)),
                ("tip_step", 3, "mm", (-1000.0, 1000.0))]
+# history_obs: the observation's other blocks as they were at each of the last HISTORY_STEPS steps, newest first;
+# its bounds are theirs (obs_bounds).
+HISTORY_BLOCK = "previous_observations"
 # The task options that add observation blocks, in the order their blocks follow the paper's.
-OBS_OPTIONS = ("force_obs", "scope_obs", "time_obs", "phase_obs", "step_obs")
+OBS_OPTIONS = ("force_obs", "scope_obs", "time_obs", "phase_obs", "step_obs", "history_obs")
 SETTLE_S = 1.0  # the stomach settles under gravity (and load) before episodes start
 # Start states are snapshots of the stomach in its periodic steady state, this
 # many per load cycle (every 50 ms of a 4 s cycle): an episode starts at its
@@ -62,14 +66,18 @@ ACTION_SCALE_FIELDS = ("control_period_s", "cable_mm_per_unit", "insertion_mm_pe
 
 
 def obs_blocks(force_obs: bool, scope_obs: bool = False, time_obs: bool = False,
-               phase_obs: bool = False, step_obs: bool = False) -> list[tuple]:
-    return OBS_BLOCKS + (FORCE_BLOCKS if force_obs else []) + (SCOPE_BLOCKS if scope_obs else []) \
+               phase_obs: bool = False, step_obs: bool = False, history_obs: bool = False) -> list[tuple]:
+    blocks = OBS_BLOCKS + (FORCE_BLOCKS if force_obs else []) + (SCOPE_BLOCKS if scope_obs else []) \
         + (TIME_BLOCKS if time_obs else []) + (PHASE_BLOCKS if phase_obs else []) + (STEP_BLOCKS if step_obs else [])
+    if history_obs:
+        n = sum(b[1] for b in blocks)
+        blocks = blocks + [(HISTORY_BLOCK, HISTORY_STEPS * n, "the blocks above, newest first", None)]
+    return blocks
 
 
 def obs_size(force_obs: bool, scope_obs: bool = False, time_obs: bool = False, phase_obs: bool = False,
-             step_obs: bool = False) -> int:
-    return sum(b[1] for b in obs_blocks(force_obs, scope_obs, time_obs, phase_obs, step_obs))
+             step_obs: bool = False, history_obs: bool = False) -> int:
+    return sum(b[1] for b in obs_blocks(force_obs, scope_obs, time_obs, phase_obs, step_obs, history_obs))
 
 
 def obs_options(cfg: TaskConfig) -> dict[str, bool]:
@@ -80,10 +88,13 @@ def obs_options(cfg: TaskConfig) -> dict[str, bool]:
 def obs_bounds(cfg: TaskConfig) -> tuple[np.ndarray, np.ndarray]:
     """Lower and upper bound of every observation entry (the force block in units of force_ref_n)."""
     lo, hi = [], []
-    for name, n, _unit, (a, b) in obs_blocks(**obs_options(cfg)):
+    for name, n, _unit, bounds in obs_blocks(**obs_options(cfg)):
+        if name == HISTORY_BLOCK:
+            lo, hi = lo + lo * HISTORY_STEPS, hi + hi * HISTORY_STEPS
+            continue
         scale = 1.0 / cfg.force_ref_n if name == "force" else 1.0
-        lo += [a * scale] * n
-        hi += [b * scale] * n
+        lo += [bounds[0] * scale] * n
+        hi += [bounds[1] * scale] * n
     return np.array(lo, np.float32), np.array(hi, np.float32)
 
 
@@ -149,6 +160,9 @@ class NavigationTask:
         self.prev_axial = 0.0
         self.prev_cables = np.zeros(4)  # the last step's commanded cable actions and tip displacement (m): step_obs
         self.tip_step = np.zeros(3)
+        # history_obs: the last observation's other blocks, and the HISTORY_STEPS before it (None: no step yet)
+        self._last_obs: np.ndarray | None = None
+        self._history: np.ndarray | None = None
         self.steps = 0
         self.peak_force = 0.0
         self.start_index = 0
@@ -206,6 +220,7 @@ class NavigationTask:
         self.prev_axial = 0.0
         self.prev_cables[:] = 0.0
         self.tip_step[:] = 0.0
+        self._history = None
         self.steps = 0
         self.peak_force = 0.0
         sim.set_controls(self.pulls, self.insertion)
@@ -302,6 +317,8 @@ class NavigationTask:
         self.insertion = min(max(self.insertion + done[4] * self.insertion_step, lo), hi)
         self.prev_axial = float(a[4])
         self.prev_cables = a[:4].copy()
+        if self.cfg.history_obs:  # the observation this action answered becomes the newest past one
+            self._history = np.concatenate([self._last_obs[None], self._past()[:-1]])
         tip_before = sim.tip_pos().copy() if self.cfg.step_obs else None
         sim.set_controls(self.pulls, self.insertion)
         instability = None
@@ -363,6 +380,16 @@ class NavigationTask:
         left = np.array([1.0 - self.steps / self.cfg.max_steps]) if self.cfg.time_obs else None
         phase = np.array([sim.load_phase()]) if self.cfg.phase_obs else None
         step = (self.prev_cables[None], self.tip_step[None]) if self.cfg.step_obs else None
-        return mdp.observe(np, self.cfg, delta[None], sim.tip_vel()[None], sim.cable_lengths()[None],
-                           np.array([self.prev_axial]), np.array([float(self.contact.active)]),
-                           force[None], self.obs_low, self.obs_high, scope, left, phase, step)[0]
+        n = self.obs_size // (HISTORY_STEPS + 1) if self.cfg.history_obs else self.obs_size
+        obs = mdp.observe(np, self.cfg, delta[None], sim.tip_vel()[None], sim.cable_lengths()[None],
+                          np.array([self.prev_axial]), np.array([float(self.contact.active)]),
+                          force[None], self.obs_low[:n], self.obs_high[:n], scope, left, phase, step)[0]
+        if not self.cfg.history_obs:
+            return obs
+        self._last_obs = obs
+        return np.concatenate([obs, self._past().ravel()])
+
+    def _past(self) -> np.ndarray:
+        """The HISTORY_STEPS observations before the last one; before an episode's first step, the first
+        repeated (the scope has stood there until now)."""
+        return self._history if self._history is not None else np.tile(self._last_obs, (HISTORY_STEPS, 1))

@@ -242,6 +242,25 @@ def test_step_observation_is_the_last_command_and_the_tip_displacement_it_made()
     np.testing.assert_array_equal(oq[15:], 0.0)  # a new episode forgets the last one's step
 
 
+def test_history_observation_is_the_last_four_observations_newest_first():
+    plain, stacked = EndoscopeEnv("DE"), EndoscopeEnv("DE", history_obs=True)
+    assert stacked.observation_space.shape == (15 * 5,)
+    np.testing.assert_array_equal(stacked.observation_space.low[15:30], stacked.observation_space.low[:15])
+    seen = [plain.reset(seed=5)[0]]
+    oq, _ = stacked.reset(seed=5)
+    np.testing.assert_array_equal(oq[:15], seen[0])
+    np.testing.assert_array_equal(oq[15:].reshape(4, 15), np.tile(seen[0], (4, 1)))  # nothing happened before
+    for a in np.array([[0.3, 0.0, -0.2, 0.1, 0.4], [0.0, 0.4, 0.0, -0.4, 0.4], [-0.1, 0.0, 0.2, 0.0, -0.2]] * 3):
+        seen.append(plain.step(a)[0])
+        oq, *_ = stacked.step(a)
+        np.testing.assert_array_equal(oq[:15], seen[-1])  # the same physics and the paper's observation
+        past = [seen[max(len(seen) - 2 - j, 0)] for j in range(4)]
+        np.testing.assert_array_equal(oq[15:].reshape(4, 15), past)
+    assert np.linalg.norm(seen[-1][:3] - seen[-5][:3]) > 1.0  # the stack spans motion (mm), not four copies
+    oq, _ = stacked.reset(seed=6, options={"target_index": int(stacked.task.targets[3])})
+    np.testing.assert_array_equal(oq[15:].reshape(4, 15), np.tile(oq[:15], (4, 1)))  # a new episode forgets
+
+
 def test_target_weights_set_how_often_each_target_is_drawn():
     env = EndoscopeEnv("DE")
     hard = set(env.task.targets[env.task.contact_aided].tolist())

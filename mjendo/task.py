@@ -145,6 +145,9 @@ class NavigationTask:
         self.substeps = substeps(c)
         self.obs_size = obs_size(**obs_options(c))
         self.obs_low, self.obs_high = obs_bounds(c)
+        # The bounds of the blocks observed now (history_obs stacks copies of them behind): computed once, not per step
+        n = self.obs_size // (HISTORY_STEPS + 1) if c.history_obs else self.obs_size
+        self._now_low, self._now_high = self.obs_low[:n], self.obs_high[:n]
         self.control_dt = self.substeps * self.sim.model.opt.timestep
         # Paper's frame: x along the insertion axis, origin 15 mm outside the
         # cardia, so "x_EE < 15 mm" means the tip is back behind the cardia.
@@ -380,10 +383,9 @@ class NavigationTask:
         left = np.array([1.0 - self.steps / self.cfg.max_steps]) if self.cfg.time_obs else None
         phase = np.array([sim.load_phase()]) if self.cfg.phase_obs else None
         step = (self.prev_cables[None], self.tip_step[None]) if self.cfg.step_obs else None
-        n = self.obs_size // (HISTORY_STEPS + 1) if self.cfg.history_obs else self.obs_size
         obs = mdp.observe(np, self.cfg, delta[None], sim.tip_vel()[None], sim.cable_lengths()[None],
                           np.array([self.prev_axial]), np.array([float(self.contact.active)]),
-                          force[None], self.obs_low[:n], self.obs_high[:n], scope, left, phase, step)[0]
+                          force[None], self._now_low, self._now_high, scope, left, phase, step)[0]
         if not self.cfg.history_obs:
             return obs
         self._last_obs = obs

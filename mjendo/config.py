@@ -349,9 +349,19 @@ class Randomization:
     # trials at the other in any stomach (docs/physics.md "Timestep"): drawing both trains across that model
     # error. A training lever, not a tissue property.
     physics_step_s: tuple[float, ...] | None = None
+    # Local give of the wall at the target (mm per N of the scope's push on the wall nearby), drawn per episode;
+    # None: none beyond the stomach's own. The reduced-order walls move as trilinear blocks and cannot dent: in
+    # SE under the shipped E, once the scope touches the wall, list A's contact-aided targets move 0.60 mm
+    # (median; 90th percentile 1.17) in the FEM wall and 0.18 (0.33) in fast-coarse at the same 10 ms step, and
+    # fitted to the scope's contact forces within target_give_sigma_mm of the target, 1.76 against 0.71 mm/N
+    # (docs/physics.md "Targets give under the scope"). The drawn give displaces the target by that many mm per N
+    # of the push, Gaussian-weighted by each contact's distance: a training lever across that model error.
+    target_give_mm_per_n: tuple[float, float] | None = None
+    target_give_sigma_mm: float = 20.0
 
     # Any of these set to None keeps the scene's value instead of drawing one.
-    RANGES = ("young_scale", "damping_scale", "load_scale", "half_period_s", "friction", "wall_compliance")
+    RANGES = ("young_scale", "damping_scale", "load_scale", "half_period_s", "friction", "wall_compliance",
+              "target_give_mm_per_n")
 
     def check(self) -> Randomization:
         """This randomization, or a ConfigError naming the bad range."""
@@ -361,13 +371,15 @@ class Randomization:
                 continue
             ok = isinstance(r, tuple | list) and len(r) == 2 and all(
                 isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x) for x in r)
-            share = name == "wall_compliance"  # a share of the way, 0 to 1; the rest are positive
-            if not ok or not ((0 <= r[0] <= r[1] <= 1) if share else (0 < r[0] <= r[1])):
-                bounds = "0 <= low <= high <= 1" if share else "0 < low <= high"
+            # a share of the way (wall_compliance) lies in [0, 1], a give may be 0, the scales are positive
+            zero_ok, top = {"wall_compliance": (True, 1.0), "target_give_mm_per_n": (True, math.inf)}.get(
+                name, (False, math.inf))
+            bounds = f"0 {'<=' if zero_ok else '<'} low <= high" + (" <= 1" if top == 1.0 else "")
+            if not ok or not ((0 <= r[0] if zero_ok else 0 < r[0]) and r[0] <= r[1] <= top):
                 raise ConfigError(f"randomization {name} must be None or a range (low, high) with {bounds}, "
                                   f"not {r!r}")
         for name, hi in (("load_tilt_deg", 90.0), ("force_noise_n", math.inf), ("target_noise_mm", math.inf),
-                         ("settle_s", math.inf), ("actuation_noise", 1.0)):
+                         ("settle_s", math.inf), ("actuation_noise", 1.0), ("target_give_sigma_mm", math.inf)):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int | float) or not 0 <= v <= hi:
                 raise ConfigError(f"randomization {name} must be a number in [0, {hi:g}], not {v!r}")
@@ -382,7 +394,7 @@ class Randomization:
 
     def draw(self, rng: np.random.Generator, nominal_direction) -> dict:
         """One episode's parameters: scales, half period (s), load direction (unit vector), friction, wall
-        compliance; None for a range that is not drawn (the scene's value)."""
+        compliance, the target's give; None for a range that is not drawn (the scene's value)."""
         def log_uniform(r):
             return None if r is None else float(np.exp(rng.uniform(np.log(r[0]), np.log(r[1]))))
 
@@ -400,6 +412,7 @@ class Randomization:
                 "load_scale": uniform(self.load_scale), "half_period_s": uniform(self.half_period_s),
                 "load_direction": direction, "friction": uniform(self.friction),
                 "wall_compliance": uniform(self.wall_compliance),
+                "target_give_mm_per_n": uniform(self.target_give_mm_per_n),
                 "physics_step_s": None if self.physics_step_s is None else float(rng.choice(self.physics_step_s))}
 
 

@@ -19,7 +19,9 @@ tests:
   lies and slides on it, which held presses do not show;
 * **policy tracks**: a policy's closed-loop trials in the full stomach, its
   actions replayed in a fast one: tip, target and force apart under the
-  policy's own motions (``python -m mjendo.fidelity policy-tracks``).
+  policy's own motions (``python -m mjendo.fidelity policy-tracks``);
+* **target give**: how far a target moves once a policy's scope touches the
+  wall, and its gain on the scope's push nearby (``python -m mjendo.fidelity give``).
 """
 
 from __future__ import annotations
@@ -473,6 +475,55 @@ def rollout_figures(ref: dict[str, np.ndarray], cand: dict[str, np.ndarray], ref
             "arrive_in_one_only": int((within["ref"] != within["cand"]).sum())}
 
 
+def target_give(controller: str, fidelity: str, targets: int = 20, timestep: float | None = None,
+                sigma_mm: float = 20.0, randomization=None) -> dict:
+    """How far list A's contact-aided targets move under a policy's scope in the static stomach (SE): per trial
+    the policy aims at one of the first ``targets`` of them; figures over the steps from its first contact on
+    (the wall stands still before), at the closest approach, and the least-squares gain (mm/N) of the target's
+    displacement on the scope's push on the wall, each contact weighted by exp(-d^2 / 2 sigma^2) of its distance
+    d to the target: the give a reduced-order wall lacks (Randomization.target_give_mm_per_n), which
+    ``randomization`` (TaskConfig.randomization) may add to measure a candidate."""
+    from mjendo.envs import EndoscopeEnv
+    from mjendo.evaluation import EVAL_SEED_BASE
+    from mjendo.policies import load_controller, obs_options_of, version_of
+
+    env = EndoscopeEnv("SE", **obs_options_of(controller), max_steps=PAPER_EVAL_STEPS, fidelity=fidelity,
+                       version=version_of(controller), timestep_s=timestep, randomization=randomization)
+    task = env.task
+    ctrl = load_controller(controller, env.task)
+    aimed = [t for t, c in zip(task.targets.tolist(), task.target_classes, strict=True) if c == "contact_aided"]
+    moved, closest, pushes, shifts, reached = [], [], [], [], 0
+    for i, target in enumerate(aimed[:targets]):
+        obs, _ = env.reset(seed=EVAL_SEED_BASE + i, options={"target_index": target})
+        ctrl.reset(task)
+        rest, touched, best = task.target_pos().copy(), False, (np.inf, 0.0)
+        for _ in range(PAPER_EVAL_STEPS):
+            r = task.step(ctrl.act(obs, task))
+            obs = r.obs
+            here = task.target_pos()
+            shift = to_mm(here - rest)
+            c = task.sim.contact(details=True)
+            touched = touched or c.active
+            if touched:
+                moved.append(float(np.linalg.norm(shift)))
+                w = np.exp(-np.sum((c.points - here) ** 2, axis=1) / (2 * from_mm(sigma_mm) ** 2)) if c.active \
+                    else np.zeros(0)
+                pushes.append(-(w @ c.forces) if c.active else np.zeros(3))
+                shifts.append(shift)
+            best = min(best, (r.info["distance_mm"], float(np.linalg.norm(shift))))
+            if r.terminated or r.truncated:
+                break
+        reached += bool(r.info["is_success"])
+        closest.append(best[1])
+        print(f"  {fidelity}: {i + 1}/{min(targets, len(aimed))} targets", flush=True)
+    x, y = np.array(pushes).reshape(-1, 3), np.array(shifts).reshape(-1, 3)
+    gain = float(np.sum(x * y) / max(float(np.sum(x * x)), 1e-12))
+    return {"fidelity": fidelity, "trials": len(closest), "reached": reached,
+            "moved_median_mm": float(np.median(moved)) if moved else 0.0,
+            "moved_p90_mm": float(np.percentile(moved, 90)) if moved else 0.0,
+            "moved_at_closest_median_mm": float(np.median(closest)), "gain_mm_per_n": gain}
+
+
 def realised_modulus(dof: str, young: float = 150e3, poisson: float = 0.3, size_mm: float = 50.0,
                      n: int = 5) -> tuple[float, float]:
     """Young's modulus and Poisson ratio a 3D flex of ``dof`` realises for MuJoCo's ``young`` and ``poisson``.
@@ -574,6 +625,11 @@ def main(argv: list[str] | None = None) -> int:
     pt.add_argument("--fidelity", choices=[f for f in FIDELITIES if f != "full"], default="fast")
     pt.add_argument("--trials", type=int, default=65)
     pt.add_argument("--cache", type=Path, help="an .npz of the full stomach's rollouts: read if present, else written")
+    gv = sub.add_parser("give", help="how far contact-aided targets move under a policy's scope (SE), per stomach")
+    gv.add_argument("--policy", default="E", help="a policy spec (default: the shipped E)")
+    gv.add_argument("--fidelities", nargs="+", choices=list(FIDELITIES), default=["full", "fast-coarse"])
+    gv.add_argument("--targets", type=int, default=20, help="list A's first N contact-aided targets, a trial each")
+    gv.add_argument("--timestep", type=float, help="physics step (s) in every stomach instead of each one's own")
     lm = sub.add_parser("motion", help="how far the listed targets move between the two load states")
     lm.add_argument("--envs", nargs="+", default=["DE", "UE1", "UE2"])
     args = ap.parse_args(argv)
@@ -589,6 +645,14 @@ def main(argv: list[str] | None = None) -> int:
             ap.error(f"--trials must be >= 1, not {args.trials}")
         return cli.run(lambda: print(_line(policy_track_comparison(
             args.policy, args.env, args.fidelity, "full", args.trials, args.cache, solimp))), ConfigError, PolicyError)
+    if args.cmd == "give":
+        from mjendo import cli
+        from mjendo.policies import PolicyError
+
+        if args.targets < 1:
+            ap.error(f"--targets must be >= 1, not {args.targets}")
+        return cli.run(lambda: [print(_line(target_give(args.policy, f, args.targets, args.timestep)), flush=True)
+                                for f in args.fidelities], ConfigError, PolicyError)
     if args.cmd == "motion":
         for env in args.envs:
             print(_line(list_motion(env)), flush=True)

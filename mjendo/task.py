@@ -173,6 +173,10 @@ class NavigationTask:
         # This episode's drawn tissue, load and friction (cfg.randomization), and its sensor-noise stream.
         self.episode_params: dict | None = None
         self._noise = np.random.default_rng(0)
+        # The target's give under the scope this episode (m per N; Randomization.target_give_mm_per_n) and its
+        # displacement now (m), added to where the wall carries it.
+        self._give_m_per_n = 0.0
+        self._give = np.zeros(3)
 
     # ------------------------------------------------------------- episodes
     def _settle(self) -> list[np.ndarray]:
@@ -226,6 +230,7 @@ class NavigationTask:
         self._history = None
         self.steps = 0
         self.peak_force = 0.0
+        self._give_m_per_n = 0.0
         sim.set_controls(self.pulls, self.insertion)
         if self.cfg.randomization is not None:
             self._randomize(rng)
@@ -239,6 +244,7 @@ class NavigationTask:
         p = r.draw(rng, sim.load_direction)
         self._noise = np.random.default_rng(int(rng.integers(2**63)))
         self.episode_params = {**p, "load_direction": [round(float(x), 6) for x in p["load_direction"]]}
+        self._give_m_per_n = from_mm(p["target_give_mm_per_n"] or 0.0)
         if p["physics_step_s"] is not None:
             sim.model.opt.timestep = p["physics_step_s"]
             self.substeps = substeps(replace(self.cfg, timestep_s=p["physics_step_s"]))
@@ -272,16 +278,32 @@ class NavigationTask:
                              "env.task.targets")
         self.target = int(index)
         self._row = int(np.flatnonzero(self.targets == index)[0])
+        self._give[:] = 0.0
         self._mark_target(False)
         mujoco.mj_kinematics(self.sim.model, self.sim.data)  # place the moved marker for the first frame
         return self.observation()
 
     def target_pos(self) -> np.ndarray:
-        """Target position now (m): it moves with the wall in DE/UE."""
+        """Target position now (m): it moves with the wall in DE/UE (and gives under the scope when drawn)."""
+        return self._wall_target() + self._give
+
+    def _wall_target(self) -> np.ndarray:
         r = self._row
         corners = self._fe_targets[self.target_tri[r]] if self._fe_targets is not None \
             else self.sim.vertices(self.target_tri[r])
         return self.target_bary[r] @ corners
+
+    def _update_give(self) -> None:
+        """Displace the target along the scope's push on the wall nearby (Randomization.target_give_mm_per_n):
+        the dent a reduced-order wall cannot make, quasi-static, Gaussian-weighted by each contact's distance."""
+        c = self.contact
+        if not c.active:
+            self._give[:] = 0.0
+            return
+        sigma = from_mm(self.cfg.randomization.target_give_sigma_mm)
+        d2 = np.sum((np.asarray(c.points) - self._wall_target()) ** 2, axis=1)
+        on_wall = -np.asarray(c.forces)  # the readings are the forces on the scope
+        self._give = self._give_m_per_n * (np.exp(-d2 / (2 * sigma**2)) @ on_wall)
 
     def list_positions(self) -> np.ndarray:
         """Positions (m) of every target of the list now, in list order."""
@@ -335,7 +357,9 @@ class NavigationTask:
         self.steps += 1
         if tip_before is not None:
             self.tip_step = sim.tip_pos() - tip_before
-        self.contact = sim.contact()
+        self.contact = sim.contact(details=bool(self._give_m_per_n))
+        if self._give_m_per_n:
+            self._update_give()
         ok = instability is None
         target = self.target_pos()
         out = mdp.outcome(self.cfg, sim.tip_pos()[None], target[None], self.origin, self.axis,

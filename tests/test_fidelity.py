@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from mjendo import fidelity
-from mjendo.config import FIDELITIES, ConfigError, Material
+from mjendo.config import FIDELITIES, ConfigError, Material, Randomization
 from mjendo.sim import Simulator
 from mjendo.task import NavigationTask
 
@@ -179,6 +179,19 @@ def test_a_policys_actions_replayed_open_loop_retrace_its_trial():
     softer = fidelity.policy_rollouts(spec, "SE", "fast", 1, actions=closed["action"], solimp=(0.1, 0.99, 0.01))
     moved = fidelity.rollout_figures(closed, softer)
     assert moved["steps"] == k and moved["tip_mean_mm"] > 0.0
+
+
+def test_the_give_protocol_measures_the_give_a_candidate_adds():
+    # target_give's gain is what calibrates Randomization.target_give_mm_per_n against the FEM wall: a drawn give
+    # of 1 mm/N must read as about 1 mm/N more than the wall's own, and a wall moves only once it is touched.
+    only = {name: None for name in Randomization.RANGES} | {"load_tilt_deg": 0.0, "force_noise_n": 0.0,
+                                                           "target_noise_mm": 0.0, "settle_s": 0.0}
+    own = fidelity.target_give("E", "fast-coarse", targets=2)
+    more = fidelity.target_give("E", "fast-coarse", targets=2, randomization=only | {"target_give_mm_per_n": (1, 1)})
+    assert own["trials"] == more["trials"] == 2 and 0 <= own["reached"] <= 2
+    assert 0.2 < own["gain_mm_per_n"] < 2.0 and 0.0 < own["moved_median_mm"] <= own["moved_p90_mm"]
+    assert more["gain_mm_per_n"] - own["gain_mm_per_n"] == pytest.approx(1.0, abs=0.25)
+    assert more["moved_median_mm"] > own["moved_median_mm"]
 
 
 def test_policy_tracks_refuse_a_cache_of_other_trials(tmp_path):

@@ -186,6 +186,41 @@ def test_actuation_noise_scatters_the_executed_steps_about_the_commanded_ones():
     assert np.linalg.norm(executed[0.2][1][-1] - executed[0.0][1][-1]) > 1e-3  # the tip goes elsewhere
 
 
+def test_target_give_displaces_the_target_along_the_scopes_push_on_the_wall_nearby():
+    only = {name: None for name in Randomization.RANGES} | {"load_tilt_deg": 0.0, "force_noise_n": 0.0,
+                                                           "target_noise_mm": 0.0, "settle_s": 0.0}
+    push = np.array([0.4, 0.0, 0.0, 0.0, 0.4])  # bend and insert into the wall
+    runs = {}
+    for give in (None, (1.0, 1.0)):
+        env = EndoscopeEnv(env="SE", fidelity="fast-coarse", max_steps=60, randomize_phase=False,
+                           randomization=only | {"target_give_mm_per_n": give})
+        _, info = env.reset(seed=3, options={"target_index": int(env.task.targets[30])})
+        assert info["randomization"]["target_give_mm_per_n"] == (None if give is None else 1.0)
+        rows = []
+        for _ in range(60):
+            _, _, term, trunc, info = env.step(push)
+            task = env.task
+            wall = task._wall_target()
+            c = task.sim.contact(details=True)
+            expect = np.zeros(3) if not c.active else -(np.exp(
+                -np.sum((c.points - wall) ** 2, axis=1) / (2 * 0.02**2)) @ c.forces) * 1e-3  # 1 mm/N, sigma 20 mm
+            rows.append((task.target_pos() - wall, expect, info["distance_mm"],
+                         np.linalg.norm(task.sim.tip_pos() - task.target_pos()) * 1e3, c.active))
+            if term or trunc:
+                break
+        runs[give] = rows
+    plain, given = runs[None], runs[(1.0, 1.0)]
+    assert all(np.all(r[0] == 0) for r in plain)  # without the draw the target is where the wall carries it
+    assert sum(r[4] for r in given) >= 10  # the scope pressed the wall on many steps
+    for offset, expect, dist, true_dist, _ in given:
+        np.testing.assert_allclose(offset, expect, atol=1e-9)
+        assert dist == pytest.approx(true_dist)  # the reward's distance is to the displaced target
+    peak = max(np.linalg.norm(r[0]) for r in given)
+    assert 1e-3 < peak < 5e-3  # a push of about a newton moves the target millimetres, not more
+    with pytest.raises(ConfigError, match="target_give_mm_per_n"):
+        task_config(randomization=only | {"target_give_mm_per_n": (-0.5, 1.0)})
+
+
 def test_physics_step_draw_runs_each_episode_at_its_step_and_keeps_the_control_period():
     only = {name: None for name in Randomization.RANGES} | {"load_tilt_deg": 0.0, "force_noise_n": 0.0,
                                                            "target_noise_mm": 0.0, "settle_s": 0.0}

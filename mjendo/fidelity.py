@@ -500,15 +500,12 @@ def target_give(controller: str, fidelity: str, targets: int = 20, timestep: flo
         for _ in range(PAPER_EVAL_STEPS):
             r = task.step(ctrl.act(obs, task))
             obs = r.obs
-            here = task.target_pos()
-            shift = to_mm(here - rest)
+            shift = to_mm(task.target_pos() - rest)
             c = task.sim.contact(details=True)
             touched = touched or c.active
             if touched:
                 moved.append(float(np.linalg.norm(shift)))
-                w = np.exp(-np.sum((c.points - here) ** 2, axis=1) / (2 * from_mm(sigma_mm) ** 2)) if c.active \
-                    else np.zeros(0)
-                pushes.append(-(w @ c.forces) if c.active else np.zeros(3))
+                pushes.append(task.push_near_target(c, sigma_mm))
                 shifts.append(shift)
             best = min(best, (r.info["distance_mm"], float(np.linalg.norm(shift))))
             if r.terminated or r.truncated:

@@ -293,17 +293,20 @@ class NavigationTask:
             else self.sim.vertices(self.target_tri[r])
         return self.target_bary[r] @ corners
 
+    def push_near_target(self, contact, sigma_mm: float) -> np.ndarray:
+        """The scope's push on the wall (N) from a detailed contact reading, each contact weighted by
+        exp(-d^2 / 2 sigma^2) of its distance d to where the wall carries the target: what the target give
+        scales, and what ``mjendo.fidelity give`` fits the give to."""
+        if not contact.active:
+            return np.zeros(3)
+        d2 = np.sum((np.asarray(contact.points) - self._wall_target()) ** 2, axis=1)
+        return np.exp(-d2 / (2 * from_mm(sigma_mm) ** 2)) @ -np.asarray(contact.forces)  # readings: force on the scope
+
     def _update_give(self) -> None:
         """Displace the target along the scope's push on the wall nearby (Randomization.target_give_mm_per_n):
-        the dent a reduced-order wall cannot make, quasi-static, Gaussian-weighted by each contact's distance."""
-        c = self.contact
-        if not c.active:
-            self._give[:] = 0.0
-            return
-        sigma = from_mm(self.cfg.randomization.target_give_sigma_mm)
-        d2 = np.sum((np.asarray(c.points) - self._wall_target()) ** 2, axis=1)
-        on_wall = -np.asarray(c.forces)  # the readings are the forces on the scope
-        self._give = self._give_m_per_n * (np.exp(-d2 / (2 * sigma**2)) @ on_wall)
+        the dent a reduced-order wall cannot make, quasi-static."""
+        self._give = self._give_m_per_n * self.push_near_target(self.contact,
+                                                                self.cfg.randomization.target_give_sigma_mm)
 
     def list_positions(self) -> np.ndarray:
         """Positions (m) of every target of the list now, in list order."""

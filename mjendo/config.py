@@ -564,6 +564,10 @@ class TaskVersion:
     # under "auto" (sparse there) with the same physics (medians of 3 alternating runs of 600 random
     # steps); the full stomach's 822 stay sparse. Version 0 keeps its scenes byte for byte.
     fast_jacobian: str = "auto"
+    # A version that is an alternative to the current one rather than its successor gets a name of its own in its
+    # Gymnasium ids (mjendo/DE-<tag>-v2): Gymnasium takes an id's highest version as the latest, so a plain
+    # mjendo/DE-v2 would make mjendo/DE resolve to it and mjendo/DE-v1 warn that it is out of date.
+    gym_tag: str = ""
 
 
 VERSIONS: dict[int, TaskVersion] = {
@@ -596,7 +600,8 @@ VERSIONS: dict[int, TaskVersion] = {
 # (`mjendo.fidelity.motion_summary` on a Fidelity with timestep_s 0.01 and 0.02: fast 3.33 / 3.14 mm in DE,
 # fast-coarse 3.13 / 3.14).
 VERSIONS[2] = replace(VERSIONS[1], fast_timestep_s=0.01,
-                      fast_load_gains={(2, 2, 2): (2.69, 2.76, 2.84), (1, 1, 1): (13.83, 14.09, 14.41)})
+                      fast_load_gains={(2, 2, 2): (2.69, 2.76, 2.84), (1, 1, 1): (13.83, 14.09, 14.41)},
+                      gym_tag="10ms")
 CURRENT_VERSION = 1
 
 

@@ -107,7 +107,7 @@ class EndoscopeEnv(gym.Env):
 
     ## Version history
 
-    * v2: v1 at the full FEM stomach's 10 ms physics step in every stomach (10 physics steps per control
+    * v2 (ids ``mjendo/<env>-10ms-v2``, named apart so ``mjendo/DE`` stays v1): v1 at the full FEM stomach's 10 ms physics step in every stomach (10 physics steps per control
       step; load gains rescaled to v1's target motion), and its own reachability map measured there
       (``python -m mjendo.targets map --version 2``, a wider demonstrator family): at 20 ms MuJoCo holds
       contacts and anchors to a 0.04 s time constant, a softer wall than configured, and at 10 ms known ways

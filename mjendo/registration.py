@@ -1,19 +1,22 @@
 """Gymnasium ids: ``mjendo/<env>-v<version>`` for every environment and task version, and the paper's id.
 
 ``-v1`` is the current task (compliant cardia pivot, left lateral decubitus, literature time scales,
-targets on the lumen surface that need the wall); ``-v0`` is the first release's task, kept so its
-tables can be reproduced. The version history is in :class:`mjendo.envs.EndoscopeEnv`.
+targets on the lumen surface that need the wall), so ``mjendo/DE`` resolves to it; ``-v0`` is the first
+release's task, kept so its tables can be reproduced; version 2, an alternative at the FEM stomach's 10 ms
+step, is ``mjendo/<env>-10ms-v2`` (``TaskVersion.gym_tag``). The version history is in
+:class:`mjendo.envs.EndoscopeEnv`.
 """
 
 import gymnasium as gym
 
-from mjendo.config import CONDITIONS, CURRENT_VERSION, VERSIONS
+from mjendo.config import CONDITIONS, CURRENT_VERSION, VERSIONS, task_version
 
 PAPER_ID = "endogym-v0"  # paper: the Gymnasium id of its DE environment (the current task here)
 
 
 def gym_id(env: str, version: int = CURRENT_VERSION) -> str:
-    return f"mjendo/{env}-v{version}"
+    tag = task_version(version).gym_tag
+    return f"mjendo/{env}-{tag}-v{version}" if tag else f"mjendo/{env}-v{version}"
 
 
 def register_all() -> None:

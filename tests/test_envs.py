@@ -1,5 +1,7 @@
 """The navigation MDP through Gymnasium and dm_control: spaces, determinism, rewards, termination."""
 
+import warnings
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -38,10 +40,22 @@ def test_every_id_is_deterministic_under_a_seed_and_seeds_differ(env_id):
 
 def test_ids_carry_their_task_version():
     assert gym.make("mjendo/DE-v1").unwrapped.task.cfg.version == 1
+    assert gym.make("mjendo/DE-10ms-v2").unwrapped.task.cfg.version == 2
     old = gym.make("mjendo/DE-v0").unwrapped.task
     assert old.cfg.version == 0 and old.cfg.control_period_s == 0.03 and old.sim.pivot < 0
     new = gym.make("mjendo/DE-v1").unwrapped.task
     assert new.cfg.control_period_s == 0.1 and new.sim.pivot >= 0
+
+
+def test_the_current_version_is_gymnasiums_latest():
+    """Version 2 is an alternative, not a successor: mjendo/DE must mean version 1, and v1 must not warn."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        gym.make("mjendo/DE-v1")
+    with pytest.warns(UserWarning, match="mjendo/DE-v1"):
+        assert gym.make("mjendo/DE").unwrapped.task.cfg.version == 1
+    with pytest.warns(DeprecationWarning, match="out of date"):
+        gym.make("mjendo/DE-v0")
 
 
 def seeded_trajectory(seed, steps=20, env_name="DE"):

@@ -175,17 +175,32 @@ class EndoscopeEnv(gym.Env):
             raise ConfigError("target weights are per stomach's list: adaptive sampling needs one anatomy")
         self.task.set_target_weights(weights)
 
+    def _check_options(self, options: dict) -> None:
+        """A misspelt or misplaced reset option is refused, not ignored: the episode would silently be another."""
+        unknown = sorted(set(options) - {"target_index", "anatomy_index"})
+        if unknown:
+            raise ConfigError(f"unknown reset option(s) {', '.join(map(str, unknown))}; valid: target_index (a "
+                              "target of env.unwrapped.task.targets), anatomy_index (with a set of stomachs)")
+        for key, n in (("target_index", None), ("anatomy_index", len(self._members))):
+            if key in options and (isinstance(options[key], bool) or not isinstance(options[key], (int, np.integer))):
+                raise ConfigError(f"reset option {key} must be a whole number, not {options[key]!r}")
+            if key == "anatomy_index" and key in options and not 0 <= options[key] < n:
+                raise ConfigError(f"anatomy_index {options[key]} is not one of this environment's {n} stomach(s) "
+                                  "(0 to {}); a set of stomachs is anatomy='train', 'val' or 'test'".format(n - 1))
+
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
+        options = options or {}
+        self._check_options(options)
         if len(self._members) > 1:
-            k = int(options["anatomy_index"]) if options and "anatomy_index" in options \
+            k = int(options["anatomy_index"]) if "anatomy_index" in options \
                 else int(self.np_random.integers(len(self._members)))
             task = self._task(k)
             if task is not self.task and self._renderer is not None:
                 self.close()  # the renderer belongs to the previous stomach's model
             self.task = task
         obs = self.task.reset(self.np_random)
-        if options and "target_index" in options:
+        if "target_index" in options:
             obs = self.task.set_target(int(options["target_index"]))
         info = {"target_index": self.task.target, "distance_mm": self.task.distance_mm(),
                 "anatomy": self.task.cfg.anatomy}

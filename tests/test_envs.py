@@ -312,6 +312,12 @@ def test_bad_actions_and_names():
     with pytest.raises(ValueError, match=r"target 0 is not in target list A \(\d+(, \d+){7}, \.\.\. \(\d+ in all\)\); "
                        "pick one of env.task.targets$"):
         env.reset(seed=0, options={"target_index": 0})  # names a few of the list's ids, not all of them
+    with pytest.raises(ConfigError, match="unknown reset option.*target; valid: target_index"):
+        env.reset(seed=0, options={"target": int(env.task.targets[0])})  # a misspelt option is not ignored
+    with pytest.raises(ConfigError, match="target_index must be a whole number, not '3'"):
+        env.reset(seed=0, options={"target_index": "3"})
+    with pytest.raises(ConfigError, match="anatomy_index 1 is not one of this environment's 1 stomach"):
+        env.reset(seed=0, options={"anatomy_index": 1})  # the built-in stomach is no set of stomachs
     with pytest.raises(gym.error.Error):
         gym.make("mjendo/XE-v0")
 

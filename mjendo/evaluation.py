@@ -458,14 +458,22 @@ def evaluate(trials: int = 200, controllers=CONTROLLERS, workers: int = 2, out: 
         raise ConfigError("--trials, --workers and --trial-steps must be >= 1 and --seed >= 0 "
                           f"(got {trials}, {workers}, {steps}, {seed})")
     check_controllers(controllers)
-    if randomization is not None or timestep is not None:  # a bad value stops here, not as an error in every trial
-        task_config(fidelity=fidelity, randomization=randomization, timestep_s=timestep)
+    unknown = sorted(set(envs or ()) - set(CONDITIONS))
+    if unknown:
+        raise ConfigError(f"unknown environment(s) {', '.join(unknown)} in --envs; valid: {', '.join(CONDITIONS)}")
+    study = [(c, e) for c, e in cells(controllers) if envs is None or e in envs]
+    if not study:
+        raise ConfigError(f"no trials: {', '.join(envs or ())} holds none of these policies' cells (FE only for "
+                          "policies trained in free space, A; the others SE, DE, UE1, UE2)")
+    # A bad value stops here, not as the same error in every trial.
+    task_config(fidelity=fidelity, randomization=randomization, timestep_s=timestep, anatomy=anatomy, version=version)
+    for v in {version_of(c, version) for c in controllers}:
+        targets.require_maps(anatomy, v)
     out = Path(out) if out is not None else default_out(fidelity)
     guard_overwrite(out, trials, overwrite)
     out.mkdir(parents=True, exist_ok=True)
     chunk = max(1, math.ceil(trials / 4))
     jobs = []
-    study = [(c, e) for c, e in cells(controllers) if envs is None or e in envs]
     for c, e in study:
         seeds = [EVAL_SEED_BASE + seed * 100003 + i for i in range(trials)]
         for j in range(0, trials, chunk):
@@ -484,8 +492,7 @@ def evaluate(trials: int = 200, controllers=CONTROLLERS, workers: int = 2, out: 
     write_table(out / "trials.csv.gz", [asdict(t) for t in all_trials])
     rows = summarize(all_trials)
     write_table(out / "summary.csv", rows)
-    targets = per_target(all_trials)
-    write_table(out / "per_target.csv", targets)
+    write_table(out / "per_target.csv", per_target(all_trials))
     from mjendo import figures
 
     made = figures.all_figures(rows, tip_paths, out, [asdict(t) for t in all_trials], steps)

@@ -155,9 +155,13 @@ class StudyConfig:
             raise ConfigError("--cpus-per-trial must be > 0 and --gpus-per-trial >= 0")
         for p in self.policies:
             train_config(self, p, 0)  # unknown variants and bad configs stop here, named
+        unknown = sorted(set(self.envs or ()) - set(CONDITIONS))
+        if unknown:
+            raise ConfigError(f"unknown environment(s) {', '.join(unknown)} in --envs; valid: {', '.join(CONDITIONS)}")
         for where in (self.anatomy, self.validation_anatomy):
             if where is not None:
                 task_config(anatomy=where)
+                targets.require_maps(where)
         if self.validation_anatomy is not None and self.validation_anatomy == self.anatomy:
             raise ConfigError(f"--validation-anatomy {self.validation_anatomy} is the set the study evaluates in: "
                               "pick the seed on other stomachs (val) than those it reports (test)")

@@ -805,6 +805,14 @@ def benchmark_maps(name: str, episodes: int, seed: int, workers: int = 2, versio
         print(f"{folder}: {meta['info']['classes']}, lists {sizes} ({time.time() - t0:.0f} s)", flush=True)
 
 
+def require_maps(anatomy_id, version: int = CURRENT_VERSION) -> None:
+    """A ConfigError naming the command unless every stomach of ``anatomy_id`` (None, a seed, a set or a folder)
+    has its map: checked before a job starts, not as the same error in each of its trials."""
+    for member in anatomy.members(anatomy_id):
+        if member is not None and not map_path(anatomy.stomach_dir(member), version).exists():
+            load_error(map_path(anatomy.stomach_dir(member), version))
+
+
 def load_error(path: Path):
     raise ConfigError(f"{path} is missing; measure the map first with `python -m mjendo.targets map` "
                       "(another stomach's: `--anatomy SEED_OR_FOLDER`)")
@@ -913,6 +921,9 @@ def main(argv: list[str] | None = None) -> int:
                   f"{hit.all(axis=1).mean():.1%} of the targets, none: {(~hit).all(axis=1).mean():.1%}); closest "
                   f"approach median {np.median(closest):.2f} mm, 90th percentile {np.percentile(closest, 90):.2f} mm")
             return
+        if args.cmd == "map" and (args.episodes < 1 or args.workers < 1):
+            raise ConfigError(f"--episodes and --workers must be >= 1 (got {args.episodes}, {args.workers}): the "
+                              "map's random exploration needs episodes, and 400 is the measured map's")
         if args.cmd == "map" and isinstance(args.anatomy, str) and args.anatomy in ANATOMY_SETS:
             benchmark_maps(args.anatomy, args.episodes, args.seed, args.workers, args.version)
             return

@@ -1,11 +1,12 @@
 """Evaluation: metrics on constructed trials, and a short real evaluation producing every output."""
 
 import math
+import shutil
 
 import numpy as np
 import pytest
 
-from mjendo import figures
+from mjendo import figures, paths
 from mjendo.config import ConfigError
 from mjendo.evaluation import Trial, evaluate, read_table, summarize, wilson
 
@@ -58,6 +59,21 @@ def test_trajectory_and_force_figures_from_constructed_paths(tmp_path, stomach):
 def test_unknown_policy_is_refused():
     with pytest.raises(ConfigError, match="valid: A, B, C, D, E, baseline"):
         evaluate(trials=1, controllers=("Z",))
+
+
+def test_an_unknown_env_or_a_stomach_without_its_map_stops_before_any_trial(tmp_path):
+    # Each used to run: every trial failed with the same error in the report, or none ran and the tables broke.
+    with pytest.raises(ConfigError, match="unknown environment.*XX in --envs; valid: FE, SE"):
+        evaluate(trials=1, controllers=("baseline",), envs=("DE", "XX"), out=tmp_path)
+    with pytest.raises(ConfigError, match="no trials: FE holds none"):
+        evaluate(trials=1, controllers=("baseline",), envs=("FE",), out=tmp_path)
+    with pytest.raises(ConfigError, match="holds no stomach.json"):
+        evaluate(trials=1, controllers=("baseline",), anatomy=str(tmp_path / "nowhere"), out=tmp_path)
+    (tmp_path / "mine").mkdir()  # a stomach whose map was never measured
+    shutil.copy(paths.STOMACH_DIR / "stomach.json", tmp_path / "mine")
+    with pytest.raises(ConfigError, match="targets.json is missing; measure the map first"):
+        evaluate(trials=1, controllers=("baseline",), anatomy=str(tmp_path / "mine"), out=tmp_path)
+    assert not (tmp_path / "trials.csv.gz").exists()
 
 
 def test_default_output_is_untracked_and_a_bigger_study_is_not_overwritten(tmp_path, monkeypatch):

@@ -265,6 +265,8 @@ def test_slack_refuses_what_it_cannot_measure_before_replaying_anything(tmp_path
         assert "add --fastest to race demonstrators from other phases" in capsys.readouterr().err
     assert targets.main(["slack", "--fastest", "--phases", "0"]) == 2
     assert "--phases 0: give 1 to" in capsys.readouterr().err
+    assert targets.main(["map", "--episodes", "0"]) == 2  # was a NumPy error from deep in the exploration
+    assert "--episodes and --workers must be >= 1 (got 0, 2)" in capsys.readouterr().err
 
 
 @pytest.mark.slow

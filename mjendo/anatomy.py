@@ -320,12 +320,17 @@ def from_surface(path: Path, entry_mm, axis, thickness_mm: float = 5.0,
         raise MeshError(f"cannot read {path}: {exc}; use .stl, .obj or .ply") from exc
     verts = from_mm(np.asarray(tm.vertices))
     faces = np.asarray(tm.faces, np.int64)
+    if len(faces) < 4 or not np.isfinite(verts).all():
+        raise MeshError(f"{path} holds {len(faces)} triangles{'' if np.isfinite(verts).all() else ' and NaN vertices'}"
+                        ": give a closed lumen surface (a watertight triangle mesh in .stl, .obj or .ply)")
+    axis = np.asarray(axis, float)
+    if axis.shape != (3,) or not np.isfinite(axis).all() or np.linalg.norm(axis) == 0:
+        raise MeshError(f"--axis {axis.tolist()} is no direction: give the way the scope enters, e.g. 1 0 0")
     size = to_mm(verts.max(0) - verts.min(0)).max()
     if not 50.0 <= size <= 500.0:
         raise MeshError(f"surface is {size:.1f} mm across; a stomach is 100-300 mm. "
                         "Is it in millimetres? Rescale it (e.g. metres x 1000)")
     entry = from_mm(np.asarray(entry_mm, float))
-    axis = np.asarray(axis, float)
     axis = axis / np.linalg.norm(axis)
     # Snap the entry onto the surface.
     entry = verts[np.argmin(np.linalg.norm(verts - entry, axis=1))]

@@ -114,6 +114,19 @@ def test_missing_and_corrupt_files(tmp_path):
         tetmesh.read_msh(bad)
     with pytest.raises(MeshError, match="anatomy build"):
         anatomy.load(tmp_path)
+    garbage = tmp_path / "garbage.stl"  # trimesh reads it as an empty mesh: refused, not a NumPy error
+    garbage.write_text("this is not a surface")
+    with pytest.raises(MeshError, match="holds 0 triangles: give a closed lumen surface"):
+        anatomy.from_surface(garbage, entry_mm=[80, 0, 0], axis=[-1, 0, 0])
+
+
+def test_an_entry_axis_that_is_no_direction_is_refused(tmp_path):
+    import trimesh
+
+    path = tmp_path / "sphere.stl"
+    trimesh.creation.icosphere(subdivisions=2, radius=80.0).export(path)
+    with pytest.raises(MeshError, match="is no direction"):
+        anatomy.from_surface(path, entry_mm=[80, 0, 0], axis=[0, 0, 0])
 
 
 def test_gmsh_tetrahedralises_the_same_wall_and_remeshing_buys_shape_with_elements(stomach):

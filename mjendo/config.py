@@ -665,6 +665,10 @@ class TaskConfig:
     # 20 ms from task version 1 and the full one at 10 ms, and MuJoCo stiffens every soft constraint whose time
     # constant it had raised to two steps: a policy's success depends on the step (docs/physics.md "Timestep").
     timestep_s: float | None = None
+    # Time constant (s) of the scope-wall contacts and the fast stomachs' anchors (their solref; None: the scene's,
+    # 20 and 10 ms). MuJoCo raises a time constant to two physics steps, its floor for stability; resolved by four
+    # steps or more the outcomes stop moving with the step (docs/physics.md "Finer steps: where the outcomes converge").
+    contact_time_constant_s: float | None = None
 
 
 TARGET_LISTS = ("A", "B", "F")  # training, held out, free-space (FE's own from version 1)
@@ -714,6 +718,10 @@ def task_config(**kw) -> TaskConfig:
         _finite("timestep_s", cfg.timestep_s, 0.0, strict=True)
         if cfg.timestep_s > MAX_TIMESTEP_S:
             raise ConfigError(f"timestep_s must be at most {MAX_TIMESTEP_S} s, not {cfg.timestep_s}")
+    if cfg.contact_time_constant_s is not None:
+        _finite("contact_time_constant_s", cfg.contact_time_constant_s, 0.0, strict=True)
+        if cfg.contact_time_constant_s > 1.0:
+            raise ConfigError(f"contact_time_constant_s is in seconds: at most 1, not {cfg.contact_time_constant_s}")
     cfg = replace(cfg, randomization=_randomization(cfg.randomization))
     for dt in (cfg.randomization and cfg.randomization.physics_step_s) or ():
         substeps(replace(cfg, timestep_s=dt))  # every drawn step must divide the control period

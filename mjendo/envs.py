@@ -99,7 +99,7 @@ class EndoscopeEnv(gym.Env):
     | ``render_mode`` | None | "rgb_array" |
     | ``camera`` | "external" | "external", "tip_camera" or "both" (side by side) |
     | ``width``, ``height`` | 480, 360 | frame size in pixels (16-4096) |
-    | ``**task`` | | any other TaskConfig field: ``cable_mm_per_unit``, ``insertion_mm_per_unit``, ``control_period_s``, ``force_ref_n`` |
+    | ``**task`` | | any other TaskConfig field: ``cable_mm_per_unit``, ``insertion_mm_per_unit``, ``control_period_s``, ``force_ref_n``, ``timestep_s`` (the physics step), ``contact_time_constant_s`` (the contacts' and anchors' softness) |
 
     ``info`` each step: distance_mm, is_success, contact, force_N (3-vector),
     peak_force_N, target_index, exited, step and the reward terms.

@@ -205,7 +205,7 @@ def anatomy_name(anatomy) -> str:
 def run_trials(controller: str, env_name: str, seeds: list[int], keep_paths: bool = False,
                fidelity: str = "fast", version: int = CURRENT_VERSION, first: int = 0,
                anatomy=None, steps: int = PAPER_EVAL_STEPS, randomization=None,
-               timestep: float | None = None) -> tuple[list, list]:
+               timestep: float | None = None, contact_time_constant: float | None = None) -> tuple[list, list]:
     """Run trials of one cell; a broken policy marks every trial with its error instead of raising."""
     from mjendo.envs import EndoscopeEnv
     from mjendo.policies import load_controller, obs_options_of, version_of
@@ -213,7 +213,8 @@ def run_trials(controller: str, env_name: str, seeds: list[int], keep_paths: boo
     try:
         env = EndoscopeEnv(env_name, **obs_options_of(controller), max_steps=steps,
                            fidelity=fidelity, version=version_of(controller, version), anatomy=anatomy,
-                           randomization=randomization, timestep_s=timestep)
+                           randomization=randomization, timestep_s=timestep,
+                           contact_time_constant_s=contact_time_constant)
         ctrl = load_controller(controller, env.task)
     except Exception as exc:  # reported per cell, the other cells still run
         msg = f"{type(exc).__name__}: {exc}".replace("\n", " ")
@@ -224,13 +225,13 @@ def run_trials(controller: str, env_name: str, seeds: list[int], keep_paths: boo
 
 
 def _job(args):
-    controller, env_name, seeds, keep, fidelity, version, first, anatomy, steps, randomization, timestep = args
+    controller, env_name, seeds, keep, fidelity, version, first, anatomy, steps, randomization, timestep, contact = args
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     import torch
 
     torch.set_num_threads(1)
     return run_trials(controller, env_name, seeds, keep, fidelity, version, first, anatomy, steps, randomization,
-                      timestep)
+                      timestep, contact)
 
 
 def wilson(successes: int, n: int, z: float = 1.96) -> tuple[float, float]:
@@ -340,7 +341,7 @@ def _git_commit() -> str:
 def write_report(rows: list[dict], out: Path, command: str, wall_s: float, n: int, fidelity: str = "fast",
                  made: list | None = None, classes: list[dict] | None = None, anatomy=None,
                  steps: int = PAPER_EVAL_STEPS, randomization=None, timestep: float | None = None,
-                 versions: tuple[int, ...] = (CURRENT_VERSION,)) -> Path:
+                 versions: tuple[int, ...] = (CURRENT_VERSION,), contact_time_constant: float | None = None) -> Path:
     """report.md: ours next to the paper's tables, then every figure embedded with its caption.
 
     ``versions``: the task versions the controllers acted in, each with its own physics step in the fast stomachs.
@@ -355,7 +356,9 @@ def write_report(rows: list[dict], out: Path, command: str, wall_s: float, n: in
         + ("" if anatomy is None else f", anatomy `{anatomy}` (trials spread evenly over its stomachs)")
         + ("" if randomization is None else f", randomized per trial (`{json.dumps(randomization)}`)")
         + f", physics step {step}"
-        + ("" if timestep is None else " (not the stomach's own)") + ".  ",
+        + ("" if timestep is None else " (not the stomach's own)")
+        + ("" if contact_time_constant is None
+           else f", contact and anchor time constant {1000 * contact_time_constant:g} ms (not the scene's)") + ".  ",
         f"Command: `{command}`  ",
         f"Commit: `{_git_commit()}`, wall time {wall_s / 60:.1f} min, {n} trials per cell, {steps} steps each "
         f"(success: final tip error < {PAPER_SUCCESS_MM:g} mm).",
@@ -440,7 +443,8 @@ def read_table(path: Path) -> list[dict]:
 def evaluate(trials: int = 200, controllers=CONTROLLERS, workers: int = 2, out: Path | None = None, seed: int = 0,
              command: str = "make eval", fidelity: str = "fast", envs: tuple[str, ...] | None = None,
              overwrite: bool = False, version: int = CURRENT_VERSION, anatomy=None,
-             steps: int = PAPER_EVAL_STEPS, randomization=None, timestep: float | None = None) -> dict:
+             steps: int = PAPER_EVAL_STEPS, randomization=None, timestep: float | None = None,
+             contact_time_constant: float | None = None) -> dict:
     """Every cell's trials; policies act in the task version they trained in, the baseline in ``version``.
 
     ``anatomy``: another stomach or a set of them (TaskConfig.anatomy); trials spread evenly over a set.
@@ -449,6 +453,7 @@ def evaluate(trials: int = 200, controllers=CONTROLLERS, workers: int = 2, out: 
     ``steps``: the trial's length (the paper's 80; longer ones measure what the trial's time costs, and
     success by step 80 in them is the 80-step trial's, the trajectories being the same).
     ``timestep``: the physics step instead of the stomach's own (TaskConfig.timestep_s).
+    ``contact_time_constant``: the contacts' and anchors' time constant (TaskConfig.contact_time_constant_s).
     """
     from tqdm import tqdm
 
@@ -466,7 +471,8 @@ def evaluate(trials: int = 200, controllers=CONTROLLERS, workers: int = 2, out: 
         raise ConfigError(f"no trials: {', '.join(envs or ())} holds none of these policies' cells (FE only for "
                           "policies trained in free space, A; the others SE, DE, UE1, UE2)")
     # A bad value stops here, not as the same error in every trial.
-    task_config(fidelity=fidelity, randomization=randomization, timestep_s=timestep, anatomy=anatomy, version=version)
+    task_config(fidelity=fidelity, randomization=randomization, timestep_s=timestep, anatomy=anatomy, version=version,
+                contact_time_constant_s=contact_time_constant)
     for v in {version_of(c, version) for c in controllers}:
         targets.require_maps(anatomy, v)
     out = Path(out) if out is not None else default_out(fidelity)
@@ -479,7 +485,7 @@ def evaluate(trials: int = 200, controllers=CONTROLLERS, workers: int = 2, out: 
         for j in range(0, trials, chunk):
             keep = c == "E" and e == "DE" and j == 0
             jobs.append((c, e, seeds[j:j + chunk], keep, fidelity, version, j, anatomy, steps, randomization,
-                         timestep))
+                         timestep, contact_time_constant))
     t0 = time.time()
     all_trials, tip_paths = [], []
     with get_context("spawn").Pool(workers) as pool:
@@ -498,7 +504,7 @@ def evaluate(trials: int = 200, controllers=CONTROLLERS, workers: int = 2, out: 
     made = figures.all_figures(rows, tip_paths, out, [asdict(t) for t in all_trials], steps)
     versions = tuple(sorted({version_of(c, version) for c, _ in study}))
     report = write_report(rows, out, command, wall, trials, fidelity, made, by_class(all_trials), anatomy, steps,
-                          randomization, timestep, versions)
+                          randomization, timestep, versions, contact_time_constant)
     print(report.read_text())
     print(f"wrote {out} in {wall / 60:.1f} min")
     return {"rows": rows, "wall_s": wall}
@@ -544,12 +550,16 @@ def main(argv: list[str] | None = None) -> int:
                     "config.Randomization, or a JSON object of its fields, e.g. '{\"young_scale\": [0.33, 0.34]}'")
     ap.add_argument("--timestep", type=float, help="physics step in s instead of the stomach's own (full 0.01, "
                     "the fast ones 0.02): how much a policy's success depends on it")
+    ap.add_argument("--contact-time-constant", type=float, help="time constant in s of the scope-wall contacts and "
+                    "the fast stomachs' anchors instead of the scene's (0.02, 0.01): four physics steps or more "
+                    "resolve them (docs/physics.md \"Finer steps\")")
     a = ap.parse_args(argv)
     command = "python -m mjendo.evaluation " + " ".join(argv if argv is not None else sys.argv[1:])
     return cli.run(lambda: evaluate(a.trials, tuple(a.policies.split(",")), a.workers, a.out, a.seed, command=command,
                                     fidelity=a.fidelity, envs=tuple(a.envs.split(",")) if a.envs else None,
                                     overwrite=a.overwrite, version=a.version, anatomy=a.anatomy,
-                                    steps=a.trial_steps, randomization=a.randomization, timestep=a.timestep),
+                                    steps=a.trial_steps, randomization=a.randomization, timestep=a.timestep,
+                                    contact_time_constant=a.contact_time_constant),
                    ConfigError, PolicyError)
 
 

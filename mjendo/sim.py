@@ -73,7 +73,7 @@ class Simulator:
 
     def __init__(self, env: str = "DE", fidelity: str = "fast", path: Path | None = None,
                  load: PeriodicLoad | None = None, version: int = CURRENT_VERSION, stomach: Path | None = None,
-                 timestep: float | None = None):
+                 timestep: float | None = None, contact_time_constant: float | None = None):
         self.env = condition(env)
         # The stomach's folder (None: the built-in one): its scenes, and the vertices the load pushes.
         self.stomach_dir = Path(stomach) if stomach is not None else anatomy.STOMACH_DIR
@@ -84,6 +84,9 @@ class Simulator:
         self.model = mujoco.MjModel.from_xml_path(str(self.path))
         if timestep is not None:  # another physics step on the same scene (TaskConfig.timestep_s)
             self.model.opt.timestep = timestep
+        if contact_time_constant is not None:  # TaskConfig.contact_time_constant_s: contacts' and anchors' solref
+            for solref in (self.model.geom_solref, self.model.flex_solref, self.model.eq_solref):
+                solref[solref[:, 0] > 0, 0] = contact_time_constant  # (time constant, damping ratio) rows only
         self.data = mujoco.MjData(self.model)
         self._ids(self.model)
         load = load or PeriodicLoad()

@@ -124,7 +124,8 @@ class NavigationTask:
         c = self.cfg
         self.stomach_dir = anatomy.stomach_dir(c.anatomy)
         stomach = None if c.anatomy is None else self.stomach_dir
-        self.sim = Simulator(c.env, c.fidelity, version=c.version, stomach=stomach, timestep=c.timestep_s)
+        self.sim = Simulator(c.env, c.fidelity, version=c.version, stomach=stomach, timestep=c.timestep_s,
+                             contact_time_constant=c.contact_time_constant_s)
         self.stomach = anatomy.load(self.stomach_dir)
         table = table or targets.load(c.version, targets.map_path(self.stomach_dir, c.version))
         listname = c.target_list or default_target_list(c.env, c.version)

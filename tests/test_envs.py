@@ -481,6 +481,8 @@ BAD_TASK_ARGS = [
     ({"force_penalty": float("inf")}, "force_penalty must be a finite number"),
     ({"force_penalty": -1.0}, "force_penalty must be a finite number >= 0"),
     ({"force_ref_n": 0.0}, "force_ref_n must be a finite number > 0"),
+    ({"contact_time_constant_s": 0.0}, "contact_time_constant_s must be a finite number > 0"),
+    ({"contact_time_constant_s": 40.0}, "contact_time_constant_s is in seconds: at most 1"),
     ({"distance_weight": -1.0}, "distance_weight must be a finite number >= 0"),
     ({"cable_mm_per_unit": float("nan")}, "cable_mm_per_unit must be a finite number"),
     ({"insertion_mm_per_unit": float("inf")}, "insertion_mm_per_unit must be a finite number"),
@@ -528,6 +530,28 @@ def test_another_physics_step_keeps_the_control_period_and_the_scope_converges()
     gap_mm = 1000 * np.linalg.norm(paths[0] - paths[1], axis=1)
     travel_mm = 1000 * np.linalg.norm(paths[0][-1] - paths[0][0])
     assert travel_mm > 30 and gap_mm.mean() < 1.5 and gap_mm.max() < 4.0
+
+
+def test_a_longer_contact_time_constant_is_a_softer_contact():
+    # The same push into the wall in SE: with the contacts' and anchors' time constant at 40 ms instead of the scene's
+    # 20 and 10 ms, the tip sinks deeper into the wall and presses it less hard.
+    def push(tc):
+        env = EndoscopeEnv("SE", fidelity="fast-coarse", contact_time_constant_s=tc)
+        env.reset(seed=0)
+        deepest, peak = 0.0, 0.0
+        for _ in range(40):
+            info = env.step(np.array([0.4, 0, 0, 0, 0.4]))[4]
+            data = env.task.sim.data
+            deepest = min([deepest, *data.contact.dist[:data.ncon]])
+            peak = max(peak, float(np.linalg.norm(info["force_N"])))
+        return env.task.sim.model, 1000 * deepest, peak
+
+    scene, scene_mm, scene_n = push(None)
+    soft, soft_mm, soft_n = push(0.04)
+    assert scene.geom_solref[:, 0].max() == 0.02 and scene.eq_solref[:, 0].min() == 0.01
+    assert (soft.geom_solref[:, 0] == 0.04).all() and (soft.eq_solref[:, 0] == 0.04).all()
+    assert scene_mm < -1.0 and soft_mm < scene_mm - 0.3  # about 2.1 and 2.6 mm into the wall
+    assert 0.1 < soft_n < 0.9 * scene_n  # about 0.23 against 0.31 N
 
 
 def test_bad_control_never_reaches_mujoco_silently():

@@ -666,8 +666,8 @@ class TaskConfig:
     # constant it had raised to two steps: a policy's success depends on the step (docs/physics.md "Timestep").
     timestep_s: float | None = None
     # Time constant (s) of the scope-wall contacts and the fast stomachs' anchors (their solref; None: the scene's,
-    # 20 and 10 ms). MuJoCo raises a time constant to two physics steps, its floor for stability; resolved by four
-    # steps or more the outcomes stop moving with the step (docs/physics.md "Finer steps: where the outcomes converge").
+    # 20 and 10 ms), set as the scene loads. MuJoCo raises a time constant to two physics steps, its floor for
+    # stability; at 40 ms paper-step keeps its 10 ms level at 5 ms, not at 2.5 ms (docs/physics.md "Finer steps").
     contact_time_constant_s: float | None = None
 
 

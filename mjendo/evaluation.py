@@ -551,8 +551,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--timestep", type=float, help="physics step in s instead of the stomach's own (full 0.01, "
                     "the fast ones 0.02): how much a policy's success depends on it")
     ap.add_argument("--contact-time-constant", type=float, help="time constant in s of the scope-wall contacts and "
-                    "the fast stomachs' anchors instead of the scene's (0.02, 0.01): four physics steps or more "
-                    "resolve them (docs/physics.md \"Finer steps\")")
+                    "the fast stomachs' anchors instead of the scene's (0.02, 0.01; MuJoCo raises it to two physics "
+                    "steps): how much a policy's success depends on the contact's softness (docs/physics.md)")
     a = ap.parse_args(argv)
     command = "python -m mjendo.evaluation " + " ".join(argv if argv is not None else sys.argv[1:])
     return cli.run(lambda: evaluate(a.trials, tuple(a.policies.split(",")), a.workers, a.out, a.seed, command=command,

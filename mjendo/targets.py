@@ -808,9 +808,10 @@ def benchmark_maps(name: str, episodes: int, seed: int, workers: int = 2, versio
 def require_maps(anatomy_id, version: int = CURRENT_VERSION) -> None:
     """A ConfigError naming the command unless every stomach of ``anatomy_id`` (None, a seed, a set or a folder)
     has its map: checked before a job starts, not as the same error in each of its trials."""
-    for member in anatomy.members(anatomy_id):
-        if member is not None and not map_path(anatomy.stomach_dir(member), version).exists():
-            load_error(map_path(anatomy.stomach_dir(member), version))
+    for member in (m for m in anatomy.members(anatomy_id) if m is not None):
+        path = map_path(anatomy.stomach_dir(member), version)
+        if not path.exists():
+            load_error(path)
 
 
 def load_error(path: Path):

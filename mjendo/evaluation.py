@@ -52,6 +52,54 @@ CONTROLLERS = (*POLICY_NAMES, "baseline")
 EVAL_SEED_BASE = 30_000_000
 
 
+@dataclass(frozen=True)
+class Conditions:
+    """What a cell's trials run in besides the policy and the environment, in one place: TaskConfig fields,
+    checked once before any trial, passed whole to the workers and described whole in the report."""
+
+    fidelity: str = "fast"
+    version: int = CURRENT_VERSION  # the baseline's task version; a policy acts in the one it trained in
+    anatomy: int | str | None = None  # another stomach or a set (TaskConfig.anatomy): trials spread over a set
+    steps: int = PAPER_EVAL_STEPS  # the trial's length (the paper's 80)
+    randomization: bool | dict | None = None  # tissue, load, friction and noise drawn per trial from its seed
+    timestep: float | None = None  # physics step instead of the stomach's own (TaskConfig.timestep_s)
+    contact_time_constant: float | None = None  # TaskConfig.contact_time_constant_s
+
+    def task(self, controller: str) -> dict:
+        """The TaskConfig fields of a controller's trials."""
+        from mjendo.policies import version_of
+
+        return {"max_steps": self.steps, "fidelity": self.fidelity, "version": version_of(controller, self.version),
+                "anatomy": self.anatomy, "randomization": self.randomization, "timestep_s": self.timestep,
+                "contact_time_constant_s": self.contact_time_constant}
+
+    def check(self, controllers) -> None:
+        """A bad value, or a stomach without a map, stops here, not as the same error in every trial."""
+        from mjendo.policies import version_of
+
+        if self.steps < 1:
+            raise ConfigError(f"--trial-steps must be >= 1, not {self.steps}")
+        task_config(**{k: v for k, v in self.task("baseline").items() if k != "max_steps"})
+        for v in {version_of(c, self.version) for c in controllers}:
+            targets.require_maps(self.anatomy, v)
+
+    def describe(self, versions: tuple[int, ...]) -> str:
+        """The report's line on the stomach and the physics; ``versions``: the task versions acted in."""
+        step = ", ".join(f"{1000 * (self.timestep or fidelity_preset(self.fidelity, v).timestep_s):g} ms"
+                         + (f" (task version {v})" if len(versions) > 1 or v != CURRENT_VERSION else "")
+                         for v in versions)
+        return (f"Stomach: {FIDELITIES[self.fidelity].description} (`fidelity={self.fidelity}`)"
+                + ("" if self.anatomy is None else f", anatomy `{self.anatomy}` (trials spread evenly over its "
+                   "stomachs)")
+                + ("" if self.randomization is None else
+                   f", randomized per trial (`{json.dumps(self.randomization)}`)")
+                + f", physics step {step}"
+                + ("" if self.timestep is None else " (not the stomach's own)")
+                + ("" if self.contact_time_constant is None
+                   else f", contact and anchor time constant {1000 * self.contact_time_constant:g} ms (not the "
+                   "scene's)") + ".  ")
+
+
 def default_out(fidelity: str) -> Path:
     """Untracked by default (runs/ is ignored): a quick `make eval TRIALS=10` never touches the committed study."""
     return paths.RUNS / "eval" / fidelity
@@ -202,36 +250,29 @@ def anatomy_name(anatomy) -> str:
     return "" if anatomy is None else str(anatomy)
 
 
-def run_trials(controller: str, env_name: str, seeds: list[int], keep_paths: bool = False,
-               fidelity: str = "fast", version: int = CURRENT_VERSION, first: int = 0,
-               anatomy=None, steps: int = PAPER_EVAL_STEPS, randomization=None,
-               timestep: float | None = None, contact_time_constant: float | None = None) -> tuple[list, list]:
+def run_trials(controller: str, env_name: str, seeds: list[int], keep_paths: bool = False, first: int = 0,
+               conditions: Conditions = Conditions()) -> tuple[list, list]:
     """Run trials of one cell; a broken policy marks every trial with its error instead of raising."""
     from mjendo.envs import EndoscopeEnv
-    from mjendo.policies import load_controller, obs_options_of, version_of
+    from mjendo.policies import load_controller, obs_options_of
 
     try:
-        env = EndoscopeEnv(env_name, **obs_options_of(controller), max_steps=steps,
-                           fidelity=fidelity, version=version_of(controller, version), anatomy=anatomy,
-                           randomization=randomization, timestep_s=timestep,
-                           contact_time_constant_s=contact_time_constant)
+        env = EndoscopeEnv(env_name, **obs_options_of(controller), **conditions.task(controller))
         ctrl = load_controller(controller, env.task)
     except Exception as exc:  # reported per cell, the other cells still run
         msg = f"{type(exc).__name__}: {exc}".replace("\n", " ")
         nan = float("nan")
         return [Trial(controller, env_name, i, s, -1, False, nan, 0, nan, False, nan, nan, nan, error=msg,
-                      anatomy=anatomy_name(anatomy)) for i, s in enumerate(seeds, start=first)], []
+                      anatomy=anatomy_name(conditions.anatomy)) for i, s in enumerate(seeds, start=first)], []
     return trial_records(env, ctrl, controller, seeds, keep_paths, first)
 
 
 def _job(args):
-    controller, env_name, seeds, keep, fidelity, version, first, anatomy, steps, randomization, timestep, contact = args
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     import torch
 
     torch.set_num_threads(1)
-    return run_trials(controller, env_name, seeds, keep, fidelity, version, first, anatomy, steps, randomization,
-                      timestep, contact)
+    return run_trials(*args)
 
 
 def wilson(successes: int, n: int, z: float = 1.96) -> tuple[float, float]:
@@ -338,27 +379,18 @@ def _git_commit() -> str:
         return "unknown"
 
 
-def write_report(rows: list[dict], out: Path, command: str, wall_s: float, n: int, fidelity: str = "fast",
-                 made: list | None = None, classes: list[dict] | None = None, anatomy=None,
-                 steps: int = PAPER_EVAL_STEPS, randomization=None, timestep: float | None = None,
-                 versions: tuple[int, ...] = (CURRENT_VERSION,), contact_time_constant: float | None = None) -> Path:
+def write_report(rows: list[dict], out: Path, command: str, wall_s: float, n: int,
+                 conditions: Conditions = Conditions(), made: list | None = None, classes: list[dict] | None = None,
+                 versions: tuple[int, ...] = (CURRENT_VERSION,)) -> Path:
     """report.md: ours next to the paper's tables, then every figure embedded with its caption.
 
     ``versions``: the task versions the controllers acted in, each with its own physics step in the fast stomachs.
     """
-    step = ", ".join(f"{1000 * (timestep or fidelity_preset(fidelity, v).timestep_s):g} ms"
-                     + (f" (task version {v})" if len(versions) > 1 or v != CURRENT_VERSION else "")
-                     for v in versions)
+    steps = conditions.steps
     lines = [
         "# mjendo evaluation vs the paper",
         "",
-        f"Stomach: {FIDELITIES[fidelity].description} (`fidelity={fidelity}`)"
-        + ("" if anatomy is None else f", anatomy `{anatomy}` (trials spread evenly over its stomachs)")
-        + ("" if randomization is None else f", randomized per trial (`{json.dumps(randomization)}`)")
-        + f", physics step {step}"
-        + ("" if timestep is None else " (not the stomach's own)")
-        + ("" if contact_time_constant is None
-           else f", contact and anchor time constant {1000 * contact_time_constant:g} ms (not the scene's)") + ".  ",
+        conditions.describe(versions),
         f"Command: `{command}`  ",
         f"Commit: `{_git_commit()}`, wall time {wall_s / 60:.1f} min, {n} trials per cell, {steps} steps each "
         f"(success: final tip error < {PAPER_SUCCESS_MM:g} mm).",
@@ -441,27 +473,21 @@ def read_table(path: Path) -> list[dict]:
 
 
 def evaluate(trials: int = 200, controllers=CONTROLLERS, workers: int = 2, out: Path | None = None, seed: int = 0,
-             command: str = "make eval", fidelity: str = "fast", envs: tuple[str, ...] | None = None,
-             overwrite: bool = False, version: int = CURRENT_VERSION, anatomy=None,
-             steps: int = PAPER_EVAL_STEPS, randomization=None, timestep: float | None = None,
-             contact_time_constant: float | None = None) -> dict:
+             command: str = "make eval", envs: tuple[str, ...] | None = None, overwrite: bool = False,
+             **conditions) -> dict:
     """Every cell's trials; policies act in the task version they trained in, the baseline in ``version``.
 
-    ``anatomy``: another stomach or a set of them (TaskConfig.anatomy); trials spread evenly over a set.
-    ``randomization``: tissue, load, friction and noise drawn per trial (TaskConfig.randomization: True for
-    config.Randomization's ranges, or a dict of its fields), from the trial's seed.
-    ``steps``: the trial's length (the paper's 80; longer ones measure what the trial's time costs, and
-    success by step 80 in them is the 80-step trial's, the trajectories being the same).
-    ``timestep``: the physics step instead of the stomach's own (TaskConfig.timestep_s).
-    ``contact_time_constant``: the contacts' and anchors' time constant (TaskConfig.contact_time_constant_s).
+    ``conditions``: the fields of Conditions (fidelity, version, anatomy, steps, randomization, timestep,
+    contact_time_constant). ``steps`` longer than the paper's 80 measure what the trial's time costs: success
+    by step 80 in them is the 80-step trial's, the trajectories being the same.
     """
     from tqdm import tqdm
 
     from mjendo.policies import version_of
 
-    if trials < 1 or workers < 1 or seed < 0 or steps < 1:
-        raise ConfigError("--trials, --workers and --trial-steps must be >= 1 and --seed >= 0 "
-                          f"(got {trials}, {workers}, {steps}, {seed})")
+    cond = Conditions(**conditions)
+    if trials < 1 or workers < 1 or seed < 0:
+        raise ConfigError(f"--trials and --workers must be >= 1 and --seed >= 0 (got {trials}, {workers}, {seed})")
     check_controllers(controllers)
     unknown = sorted(set(envs or ()) - set(CONDITIONS))
     if unknown:
@@ -470,12 +496,8 @@ def evaluate(trials: int = 200, controllers=CONTROLLERS, workers: int = 2, out: 
     if not study:
         raise ConfigError(f"no trials: {', '.join(envs or ())} holds none of these policies' cells (FE only for "
                           "policies trained in free space, A; the others SE, DE, UE1, UE2)")
-    # A bad value stops here, not as the same error in every trial.
-    task_config(fidelity=fidelity, randomization=randomization, timestep_s=timestep, anatomy=anatomy, version=version,
-                contact_time_constant_s=contact_time_constant)
-    for v in {version_of(c, version) for c in controllers}:
-        targets.require_maps(anatomy, v)
-    out = Path(out) if out is not None else default_out(fidelity)
+    cond.check(controllers)
+    out = Path(out) if out is not None else default_out(cond.fidelity)
     guard_overwrite(out, trials, overwrite)
     out.mkdir(parents=True, exist_ok=True)
     chunk = max(1, math.ceil(trials / 4))
@@ -484,8 +506,7 @@ def evaluate(trials: int = 200, controllers=CONTROLLERS, workers: int = 2, out: 
         seeds = [EVAL_SEED_BASE + seed * 100003 + i for i in range(trials)]
         for j in range(0, trials, chunk):
             keep = c == "E" and e == "DE" and j == 0
-            jobs.append((c, e, seeds[j:j + chunk], keep, fidelity, version, j, anatomy, steps, randomization,
-                         timestep, contact_time_constant))
+            jobs.append((c, e, seeds[j:j + chunk], keep, j, cond))
     t0 = time.time()
     all_trials, tip_paths = [], []
     with get_context("spawn").Pool(workers) as pool:
@@ -501,10 +522,9 @@ def evaluate(trials: int = 200, controllers=CONTROLLERS, workers: int = 2, out: 
     write_table(out / "per_target.csv", per_target(all_trials))
     from mjendo import figures
 
-    made = figures.all_figures(rows, tip_paths, out, [asdict(t) for t in all_trials], steps)
-    versions = tuple(sorted({version_of(c, version) for c, _ in study}))
-    report = write_report(rows, out, command, wall, trials, fidelity, made, by_class(all_trials), anatomy, steps,
-                          randomization, timestep, versions, contact_time_constant)
+    made = figures.all_figures(rows, tip_paths, out, [asdict(t) for t in all_trials], cond.steps)
+    versions = tuple(sorted({version_of(c, cond.version) for c, _ in study}))
+    report = write_report(rows, out, command, wall, trials, cond, made, by_class(all_trials), versions)
     print(report.read_text())
     print(f"wrote {out} in {wall / 60:.1f} min")
     return {"rows": rows, "wall_s": wall}

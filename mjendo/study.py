@@ -47,7 +47,7 @@ from mjendo.config import (
     TaskConfig,
     task_config,
 )
-from mjendo.evaluation import EVAL_SEED_BASE, cells, read_table, run_trials, write_table
+from mjendo.evaluation import EVAL_SEED_BASE, Conditions, cells, read_table, run_trials, write_table
 from mjendo.train_config import load as load_config
 
 ADOPTED_MARK = "ADOPTED"  # a run folder copied from a published seed (its trials; its weights when published)
@@ -341,8 +341,8 @@ def trial(cfg: StudyConfig, policy: str, seed: int) -> list[dict]:
             if env in cached:
                 rows += cached[env]
                 continue
-            trials, _ = run_trials(str(run), env, eval_seeds(cfg), fidelity=cfg.fidelity, anatomy=cfg.anatomy,
-                                   steps=cfg.trial_steps)
+            trials, _ = run_trials(str(run), env, eval_seeds(cfg), conditions=Conditions(
+                cfg.fidelity, anatomy=cfg.anatomy, steps=cfg.trial_steps))
             rows += [{**asdict(t), "controller": policy, "seed_trained": seed, "fidelity": cfg.fidelity,
                       "model": model} for t in trials]
         kept = [r for e, others in cached.items() if e not in want for r in others]  # other studies' cells stay
@@ -370,7 +370,7 @@ def validate(cfg: StudyConfig, policy: str, run: Path) -> dict:
                           "trials this study asks for: study it with the validation trials it was published "
                           "with (--validation-trials), or delete the folder to train the seed again")
     seeds = [VALIDATION_SEED + i for i in range(cfg.validation_trials)]
-    trials, _ = run_trials(str(run), tc.env, seeds, fidelity=cfg.fidelity, anatomy=where)
+    trials, _ = run_trials(str(run), tc.env, seeds, conditions=Conditions(cfg.fidelity, anatomy=where))
     result = {"env": tc.env, "fidelity": cfg.fidelity, "model": model, "trials": len(trials),
               "first_seed": VALIDATION_SEED,
               "success_rate": float(np.mean([t.success for t in trials])),

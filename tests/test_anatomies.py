@@ -131,7 +131,7 @@ def test_a_set_of_stomachs_is_drawn_per_episode(cache, monkeypatch):
 def test_the_evaluation_spreads_trials_over_a_set_of_stomachs(cache, monkeypatch):
     from mjendo import config
     from mjendo.envs import EndoscopeEnv
-    from mjendo.evaluation import per_target, run_trials, trial_targets
+    from mjendo.evaluation import Conditions, per_target, run_trials, trial_targets
 
     monkeypatch.setitem(config.ANATOMY_SETS, "test", (5, 6))
     for seed in (5, 6):
@@ -140,7 +140,8 @@ def test_the_evaluation_spreads_trials_over_a_set_of_stomachs(cache, monkeypatch
     pairs = trial_targets(env, 12)
     assert [k for k, _ in pairs] == [0, 1] * 6  # every stomach as often
     assert {t for k, t in pairs if k == 0} == set(env.anatomy_task(0).targets.tolist())  # list B of each: 3
-    trials, _ = run_trials("baseline", "UE2", [11, 12, 13, 14], anatomy="test")  # in this process: the set above
+    # in this process: the set above
+    trials, _ = run_trials("baseline", "UE2", [11, 12, 13, 14], conditions=Conditions(anatomy="test"))
     assert [t.anatomy for t in trials] == ["5", "6", "5", "6"] and {t.target_class for t in trials} == {"free"}
     assert all(t.error == "" and t.final_mm >= 0 and t.steps >= 1 for t in trials)
     rows = per_target(trials)  # a target id of one stomach is not the same target in another

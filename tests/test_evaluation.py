@@ -211,11 +211,11 @@ def test_success_by_target_class_counts_each_class_apart():
 
 def test_a_longer_trial_replays_the_paper_trial_and_goes_on(tmp_path):
     # The same seed and controller: the first 80 steps are the 80-step trial's, then the trial continues.
-    from mjendo.evaluation import run_trials
+    from mjendo.evaluation import Conditions, run_trials
 
     seeds = [30_000_000 + i for i in range(2)]
     short, _ = run_trials("baseline", "SE", seeds)
-    long, _ = run_trials("baseline", "SE", seeds, steps=95)
+    long, _ = run_trials("baseline", "SE", seeds, conditions=Conditions(steps=95))
     for s, lg in zip(short, long, strict=True):
         assert s.target == lg.target and s.steps <= 80 and lg.steps <= 95
         if s.success:
@@ -229,13 +229,13 @@ def test_a_longer_trial_replays_the_paper_trial_and_goes_on(tmp_path):
 def test_randomized_trials_draw_the_load_per_trial_and_a_bad_range_stops_before_any(tmp_path):
     # The same trials under half and one and a half times the breathing load: the targets move more
     # under the larger, so the draw reaches the physics of every trial.
-    from mjendo.evaluation import main, run_trials
+    from mjendo.evaluation import Conditions, main, run_trials
 
     fixed = {"young_scale": [1, 1], "damping_scale": [1, 1], "half_period_s": [2, 2], "friction": [0.1, 0.1],
              "load_tilt_deg": 0.0, "force_noise_n": 0.0, "target_noise_mm": 0.0}
     seeds = [30_000_000 + i for i in range(2)]
-    weak, _ = run_trials("baseline", "DE", seeds, randomization={**fixed, "load_scale": [0.5, 0.5]})
-    strong, _ = run_trials("baseline", "DE", seeds, randomization={**fixed, "load_scale": [1.5, 1.5]})
+    weak, strong = (run_trials("baseline", "DE", seeds, conditions=Conditions(
+        randomization={**fixed, "load_scale": [k, k]}))[0] for k in (0.5, 1.5))
     assert not any(t.error for t in weak + strong)
     for w, g in zip(weak, strong, strict=True):
         assert w.target == g.target and g.target_motion_mm > 1.5 * w.target_motion_mm > 0.5

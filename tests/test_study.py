@@ -241,8 +241,8 @@ def test_validation_can_pick_the_seed_on_stomachs_of_its_own(tmp_path, monkeypat
     shutil.copytree("models/policies/E", run)
     asked = []
 
-    def fake_trials(run_dir, env, seeds, fidelity, anatomy):
-        asked.append((env, anatomy, len(seeds)))
+    def fake_trials(run_dir, env, seeds, conditions):
+        asked.append((env, conditions.anatomy, len(seeds)))
         return [SimpleNamespace(success=i % 4 != 0, final_mm=2.0) for i in range(len(seeds))], None
 
     monkeypatch.setattr(study_module, "run_trials", fake_trials)

@@ -411,6 +411,8 @@ def main(argv: list[str] | None = None) -> int:
     s = sub.add_parser("ship", help="copy a finished run to models/policies/<POLICY>/")
     s.add_argument("run", type=Path, help="run folder, e.g. runs/E/seed0")
     s.add_argument("policy", choices=POLICY_NAMES)
+    s.add_argument("--actor-only", action="store_true", help="an evaluation copy: the value function zeroed, half "
+                   "the bytes, the same actions; no run can continue from it")
     c = sub.add_parser("compare", help="whether two policy folders act alike bit for bit (a retrain and its "
                        "published seed)")
     c.add_argument("run", type=Path, help="a policy folder, e.g. runs/E/paired-fast-coarse-seed4-fast-coarse")
@@ -420,7 +422,7 @@ def main(argv: list[str] | None = None) -> int:
         status = []
         code = cli.run(lambda: status.append(_compare(a.run, a.folder)), PolicyError)
         return code or status[0]
-    return cli.run(lambda: print(f"shipped {a.run} to {ship(a.run, a.policy)}"), PolicyError)
+    return cli.run(lambda: print(f"shipped {a.run} to {ship(a.run, a.policy, actor_only=a.actor_only)}"), PolicyError)
 
 
 if __name__ == "__main__":

@@ -20,6 +20,7 @@ from mjendo.train_config import shipped_variant
 TRAINED_IN = {"A": "FE", "B": "SE", "C": "SE", "D": "DE", "E": "DE"}  # paper: the five policies
 V0 = policies_dir() / "v0"  # the task-version-0 policies: always shipped, so these tests always run
 E0 = V0 / "E"
+E1 = policies_dir() / "E"  # the current version's shipped E, its value function kept
 # Every shipped policy folder: version 0's five, and the current version's as far as they are shipped.
 SHIPPED = [(0, V0 / p, p) for p in TRAINED_IN] + [(1, policies_dir() / p, p) for p in TRAINED_IN
                                                    if (policies_dir() / p / artifacts.MODEL_FILE).exists()]
@@ -169,6 +170,15 @@ def test_ship_copies_what_the_run_recorded(tmp_path, monkeypatch, policy_copy):
     (policy_copy / "meta.json").write_text(json.dumps(meta))
     assert artifacts.home("E", None) == tmp_path / "shipped" / "variants" / "E-paper"
     assert artifacts.home("A", None) == tmp_path / "shipped" / "A"
+    # `ship --actor-only`: an evaluation copy (as the variants that only act are published) of a run that has a
+    # value function; without the flag the copy keeps it
+    run = tmp_path / "run"
+    run.mkdir()
+    for name in ("model.zip", "vecnormalize.pkl", "meta.json"):
+        shutil.copy2(E1 / name, run / name)
+    for flag, actor_only in (([], False), (["--actor-only"], True)):
+        assert artifacts.main(["ship", str(run), "E", *flag]) == 0
+        assert artifacts.is_actor_only(tmp_path / "shipped" / "E" / "model.zip") == actor_only
     meta["timesteps"] = 0
     (policy_copy / "meta.json").write_text(json.dumps(meta))
     with pytest.raises(PolicyError, match="not a finished run"):

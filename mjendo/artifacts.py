@@ -235,8 +235,15 @@ def _warn_scene(directory: Path, meta: dict) -> None:
                           f"{why}; retrain it or check out the commit in its meta.json", RuntimeWarning, stacklevel=3)
 
 
+def published_variants() -> list[str]:
+    """Names of the variants published beside the shipped policies (models/policies/variants/<P>-<variant>/)."""
+    root = paths.policies_dir() / "variants"
+    return sorted(d.name for d in root.glob("*") if (d / "model.zip").is_file()) if root.is_dir() else []
+
+
 def resolve(spec: str) -> Path:
-    """'A'..'E' (shipped), a policy or run folder, or a model.zip inside one -> the folder."""
+    """'A'..'E' (shipped), a published variant's name ('E-paper-step'), a policy or run folder, or a model.zip
+    inside one -> the folder."""
     if spec in POLICY_NAMES:
         return paths.policies_dir() / spec
     p = Path(spec)
@@ -244,8 +251,11 @@ def resolve(spec: str) -> Path:
         return p.parent
     if p.is_dir():
         return p
-    raise ConfigError(f"unknown policy {spec!r}; valid: {', '.join(POLICY_NAMES)}, baseline, random, or a policy "
-                      "folder with model.zip (e.g. runs/E/seed0)")
+    if spec in published_variants():
+        return paths.policies_dir() / "variants" / spec
+    raise ConfigError(f"unknown policy {spec!r}; valid: {', '.join(POLICY_NAMES)}, baseline, random, a published "
+                      f"variant ({', '.join(published_variants()) or 'none installed'}), or a policy folder with "
+                      "model.zip (e.g. runs/E/seed0)")
 
 
 def obs_options(directory: Path) -> dict[str, bool]:

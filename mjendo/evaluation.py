@@ -125,14 +125,19 @@ def cells(controllers=CONTROLLERS) -> list[tuple[str, str]]:
 
 
 def check_controllers(controllers) -> None:
-    """Letters, baseline, or policy folders; anything else is refused before any work starts."""
+    """Letters, baseline, published variants or policy folders; anything else is refused before any work starts."""
     from mjendo import artifacts
 
     for c in controllers:
-        if c not in CONTROLLERS and not (Path(c).is_dir() or Path(c).suffix == ".zip"):
-            raise ConfigError(f"unknown policy {c!r}; valid: {', '.join(CONTROLLERS)}, or a policy folder "
-                              "with model.zip (e.g. runs/E/seed0)")
-        if c not in CONTROLLERS and not (artifacts.model_home(artifacts.resolve(c)) / artifacts.MODEL_FILE).exists():
+        if c in CONTROLLERS:
+            continue
+        try:
+            folder = artifacts.resolve(c)
+        except ConfigError:
+            raise ConfigError(f"unknown policy {c!r}; valid: {', '.join(CONTROLLERS)}, a published variant "
+                              f"({', '.join(artifacts.published_variants()) or 'none installed'}), or a policy "
+                              "folder with model.zip (e.g. runs/E/seed0)") from None
+        if not (artifacts.model_home(folder) / artifacts.MODEL_FILE).exists():
             raise ConfigError(f"{c} holds no {artifacts.MODEL_FILE}: pass a finished run or policy folder")
 
 
@@ -550,7 +555,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--trials", type=int, default=200,
                     help="trials per cell (200: 95%% CI about +-3 points at 95%% SR, +-7 at 50%%)")
     ap.add_argument("--policies", default=",".join(CONTROLLERS),
-                    help="comma-separated: A-E (shipped), baseline, or policy/run folders (runs/E/seed0)")
+                    help="comma-separated: A-E (shipped), baseline, published variants (E-paper-step: "
+                         "models/policies/variants/), or policy/run folders (runs/E/seed0)")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--fidelity", choices=list(FIDELITIES), default="fast", help="stomach to evaluate in")

@@ -272,7 +272,8 @@ def main(argv: list[str] | None = None) -> int:
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--headless", action="store_true", help="no window: render offscreen (needs --record)")
     ap.add_argument("--record", type=Path, help="write an mp4 here")
-    ap.add_argument("--policy", default="E", help="A-E (shipped), a run folder, baseline, random, keyboard")
+    ap.add_argument("--policy", default="E",
+                    help="A-E (shipped), a published variant (E-paper-step), a run folder, baseline, random, keyboard")
     ap.add_argument("--env", default="DE", help="FE, SE, DE, UE1, UE2")
     ap.add_argument("--episodes", type=int, default=3)
     ap.add_argument("--seed", type=int, default=0)

@@ -10,7 +10,7 @@ import pytest
 from scipy.stats import binom
 
 from mjendo import artifacts
-from mjendo.config import PAPER_ACTION_LIMIT, PAPER_EVAL_STEPS
+from mjendo.config import PAPER_ACTION_LIMIT, PAPER_EVAL_STEPS, ConfigError
 from mjendo.envs import EndoscopeEnv
 from mjendo.paths import TRAINING_CONFIG, policies_dir
 from mjendo.policies import PolicyError, PPOController, force_obs_of, load_controller
@@ -107,6 +107,16 @@ def test_what_a_policy_observes_comes_from_its_own_folder(tmp_path, monkeypatch)
     copy = tmp_path / "E_copy"
     shutil.copytree(E0, copy)
     assert force_obs_of(str(copy)) and force_obs_of(str(copy / "model.zip"))
+
+
+def test_a_published_variant_is_named_by_its_folder(monkeypatch, tmp_path):
+    # The FEM stomach's E is published as a variant: its name alone must reach it, from any working directory.
+    monkeypatch.chdir(tmp_path)
+    assert artifacts.resolve("E-paper-step") == policies_dir() / "variants" / "E-paper-step"
+    ctrl = load_controller("E-paper-step")
+    assert ctrl.n_obs == 15 and force_obs_of("E-paper-step") and not force_obs_of("D-paper-step")
+    with pytest.raises(ConfigError, match=r"unknown policy 'E-nothing'.*a published variant \(.*E-paper-step"):
+        artifacts.resolve("E-nothing")
 
 
 @pytest.fixture

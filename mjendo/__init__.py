@@ -7,7 +7,7 @@ task's ``-v0``) and the paper's ``endogym-v0`` (DE), as Gymnasium's own packages
 
 from mjendo.gl import choose_backend
 
-__version__ = "0.3.0"
+__version__ = "0.4.0"
 
 choose_backend()
 

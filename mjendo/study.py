@@ -315,6 +315,21 @@ def _cells(cfg: StudyConfig, policy: str) -> list[tuple[str, str]]:
     return [(policy, e) for _, e in cells((split_spec(policy)[0],)) if cfg.envs is None or e in cfg.envs]
 
 
+def _all_cached(cfg: StudyConfig, policy: str, seed: int) -> bool:
+    """Whether every cell this study asks of the seed is cached in a run that may report it as it is."""
+    run = run_folder(cfg, policy, seed)
+    cached = _cached_cells(run, cfg, policy)
+    return all(e in cached for _, e in _cells(cfg, policy)) and \
+        reportable(run, train_config(cfg, policy, seed).total_timesteps)
+
+
+def will_train(cfg: StudyConfig, policy: str, seed: int) -> bool:
+    """Whether the grid point trains: its cells are not all cached and its run has no finished weights (a seed
+    published with its trials only, asked for other cells, trains again from its variant's start)."""
+    return not _all_cached(cfg, policy, seed) and \
+        not finished(run_folder(cfg, policy, seed), train_config(cfg, policy, seed).total_timesteps)
+
+
 def trial(cfg: StudyConfig, policy: str, seed: int) -> list[dict]:
     """One grid point: train or resume (or skip when finished), then evaluate; returns the trial rows."""
     import torch
@@ -324,14 +339,14 @@ def trial(cfg: StudyConfig, policy: str, seed: int) -> list[dict]:
     torch.set_num_threads(1)
     run = run_folder(cfg, policy, seed)
     cached, want = _cached_cells(run, cfg, policy), [e for _, e in _cells(cfg, policy)]
-    if all(e in cached for e in want) and reportable(run, train_config(cfg, policy, seed).total_timesteps):
+    if _all_cached(cfg, policy, seed):
         validate(cfg, policy, run)
         return [r for e in want for r in cached[e]]
     run.mkdir(parents=True, exist_ok=True)
     mark = run / RUNNING_MARK
     mark.write_text(f"{socket.gethostname()} {os.getpid()}\n")
     try:
-        if not finished(run, train_config(cfg, policy, seed).total_timesteps):
+        if will_train(cfg, policy, seed):
             cached = {}  # trials of the weights before this training are not this policy's
             letter, variant = split_spec(policy)
             train(letter, cfg.timesteps, seed, out=cfg.runs, config_file=cfg.config, progress=False,
@@ -447,7 +462,12 @@ def run_grid(cfg: StudyConfig) -> list[dict]:
 
     grid = cfg.grid()
     for p, s in grid:
-        if adopt_shipped(cfg, p, s):
+        if not adopt_shipped(cfg, p, s):
+            continue
+        if will_train(cfg, p, s):
+            print(f"{p} seed {s}: published with its trials only, not those this study asks for: trained again "
+                  f"({train_config(cfg, p, s).total_timesteps:,} steps; its run, bit for bit on one machine kind)")
+        else:
             print(f"{p} seed {s}: the shipped policy is this run (same seed, task and budget): not retrained")
     task = ray.remote(num_cpus=cfg.cpus_per_trial, num_gpus=cfg.gpus_per_trial)(trial)
     refs = {task.remote(cfg, p, s): (p, s) for p, s in grid}

@@ -479,7 +479,7 @@ def test_a_variant_seed_published_without_weights_is_reported_from_its_trials(tm
     # A variant's non-shipped seed that no variant starts from is published with its trials, validation and
     # meta only: the study reports it without training or evaluating, and loading it says how to get it back.
     from mjendo import artifacts, paths
-    from mjendo.study import StudyConfig, adopt_shipped, run_folder, seed_folder, started_from, trial
+    from mjendo.study import StudyConfig, adopt_shipped, run_folder, seed_folder, started_from, trial, will_train
 
     cfg = StudyConfig(policies=("E-randomized",), seeds=(1,), anatomy="test", envs=("DE", "UE2"), trials=200,
                       runs=tmp_path / "runs")
@@ -489,7 +489,10 @@ def test_a_variant_seed_published_without_weights_is_reported_from_its_trials(tm
         in started_from(cfg)  # randomized-free-pool starts there: those weights stay
     monkeypatch.setenv("MJENDO_POLICIES", str(tmp_path / "policies"))
     shutil.copytree(published, seed_folder("E-randomized", 1))
-    assert adopt_shipped(cfg, "E-randomized", 1)
+    assert adopt_shipped(cfg, "E-randomized", 1) and not will_train(cfg, "E-randomized", 1)
+    # Asked for stomachs its trials do not cover, it has no weights to evaluate: the study says it trains again.
+    assert will_train(StudyConfig(policies=("E-randomized",), seeds=(1,), anatomy="val", envs=("DE",), trials=200,
+                                  runs=tmp_path / "runs"), "E-randomized", 1)
     rows = trial(cfg, "E-randomized", 1)
     run = run_folder(cfg, "E-randomized", 1)
     assert len(rows) == 400 and not (run / artifacts.MODEL_FILE).exists()  # nothing trained or evaluated

@@ -21,13 +21,13 @@ import numpy as np
 
 from mjendo import cli, paths, tetmesh
 from mjendo.config import (
-    ANATOMY_SETS,
     PAPER_N_FIXED,
     PAPER_N_FORCED,
     AnatomyRanges,
     ConfigError,
     Endoscope,
     StomachShape,
+    anatomy_set,
 )
 from mjendo.tetmesh import GMSH_ALGORITHMS, MeshError, TetMesh, extrude_wall, gmsh_wall, quality
 from mjendo.units import from_mm, to_mm
@@ -291,14 +291,15 @@ def anatomy_dir(seed: int) -> Path:
 
 def members(anatomy: int | str | None) -> list:
     """The stomachs an environment draws its episodes from: a set's seeds, else the one given."""
-    return list(ANATOMY_SETS[anatomy]) if isinstance(anatomy, str) and anatomy in ANATOMY_SETS else [anatomy]
+    seeds = anatomy_set(anatomy)
+    return [anatomy] if seeds is None else list(seeds)
 
 
 def stomach_dir(anatomy: int | str | Path | None) -> Path:
     """The folder of a task's stomach: None the built-in one, a seed a generated one, a path a user's own."""
     if anatomy is None:
         return STOMACH_DIR
-    if isinstance(anatomy, str) and anatomy in ANATOMY_SETS:
+    if anatomy_set(anatomy) is not None:
         raise ConfigError(f"anatomy {anatomy!r} is a set of stomachs: the environment (EndoscopeEnv) draws one "
                           "per episode; a task runs in one stomach (its seed)")
     if isinstance(anatomy, int | np.integer) and not isinstance(anatomy, bool):

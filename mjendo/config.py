@@ -9,6 +9,7 @@ model builders convert them once through :mod:`mjendo.units`.
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 
@@ -92,6 +93,26 @@ class AnatomyRanges:
 ANATOMY_SETS: dict[str, tuple[int, ...]] = {"train": tuple(range(0, 20)),
                                             "val": (200, 201, 202, 203, 205, 206, 207, 208, 209, 210),
                                             "test": tuple(range(100, 110))}
+
+
+def anatomy_set(anatomy) -> tuple[int, ...] | None:
+    """The seeds of a set of generated stomachs, or None for one stomach: a benchmark set's name (ANATOMY_SETS)
+    or a list of your own, written as seeds and ranges ("110-119", "3,5,8-9"), for a held-out set of your own."""
+    if not isinstance(anatomy, str):
+        return None
+    if anatomy in ANATOMY_SETS:
+        return ANATOMY_SETS[anatomy]
+    if not re.fullmatch(r"\d+(-\d+)?(,\d+(-\d+)?)*", anatomy) or ("," not in anatomy and "-" not in anatomy):
+        return None
+    seeds = []
+    for part in anatomy.split(","):
+        lo, _, hi = part.partition("-")
+        if hi and int(hi) < int(lo):
+            raise ConfigError(f"anatomy {anatomy!r}: the range {part} runs backwards; write it {hi}-{lo}")
+        seeds += range(int(lo), int(hi or lo) + 1)
+    if len(set(seeds)) != len(seeds):
+        raise ConfigError(f"anatomy {anatomy!r} names a stomach twice: give each seed once")
+    return tuple(seeds)
 
 
 @dataclass(frozen=True)
@@ -658,8 +679,8 @@ class TaskConfig:
     # task_config also takes True (the default ranges) or a dict of Randomization fields.
     randomization: Randomization | None = None
     # Which stomach: None the built-in one; a whole number a generated one (anatomy.generate, its seed);
-    # "train" or "test" one of ANATOMY_SETS, drawn per episode by the environment; a path a folder built by
-    # `python -m mjendo.anatomy build` (yours) with its target map.
+    # a set ("train", "val", "test" of ANATOMY_SETS, or seeds as "110-119"), drawn per episode by the environment;
+    # a path a folder built by `python -m mjendo.anatomy build` (yours) with its target map.
     anatomy: int | str | None = None
     # Physics step (s) instead of the stomach's own (Fidelity.timestep_s; None: that one). The fast stomachs run at
     # 20 ms from task version 1 and the full one at 10 ms, and MuJoCo stiffens every soft constraint whose time
@@ -743,10 +764,11 @@ def _anatomy(cfg: TaskConfig) -> None:
     a = cfg.anatomy
     if isinstance(a, bool) or not isinstance(a, int | np.integer | str):
         raise ConfigError(f"anatomy must be None (the built-in stomach), a seed (a whole number >= 0), a set "
-                          f"({', '.join(ANATOMY_SETS)}) or the folder of a stomach you built, not {a!r}")
+                          f"({', '.join(ANATOMY_SETS)}, or seeds as '110-119'), or the folder of a stomach you built, "
+                          f"not {a!r}")
     if isinstance(a, int | np.integer) and a < 0:
         raise ConfigError(f"anatomy seed must be >= 0, not {a}")
-    if isinstance(a, str) and a not in ANATOMY_SETS and not (Path(a) / "stomach.json").exists():
+    if isinstance(a, str) and anatomy_set(a) is None and not (Path(a) / "stomach.json").exists():
         raise ConfigError(f"anatomy {a!r} holds no stomach.json; build one with `python -m mjendo.anatomy build "
                           f"--surface YOUR.stl --entry X Y Z --axis DX DY DZ --out {a}`")
     if cfg.version < 1:

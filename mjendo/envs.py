@@ -94,7 +94,7 @@ class EndoscopeEnv(gym.Env):
     | ``distance_weight`` | 1.0 | weight of the distance term (the paper's: 1; not the paper's below it: train/policies.yaml variants) |
     | ``success_mm`` | 3.0 | distance at which an episode succeeds (the paper's: 3; a training margin below it: train/policies.yaml variants; trials always use 3) |
     | ``randomize_phase`` | True | start each episode at a random phase of the periodic load (False: phase 0) |
-    | ``anatomy`` | None | the stomach: None built-in; a seed (generated, ``anatomy.generate``); "train" or "test" (``config.ANATOMY_SETS``, one drawn per episode; ``reset(options={"anatomy_index": k})`` picks one); a folder you built |
+    | ``anatomy`` | None | the stomach: None built-in; a seed (generated, ``anatomy.generate``); a set: "train", "val", "test" (``config.ANATOMY_SETS``) or seeds as "110-119" (one drawn per episode; ``reset(options={"anatomy_index": k})`` picks one); a folder you built |
     | ``randomization`` | None | per-episode tissue stiffness and damping, load amplitude, period and direction, friction and sensor noise, and on request the scope-wall contact impedance (``wall_compliance``), actuation error (``actuation_noise``) and the target's give under the scope (``target_give_mm_per_n``): True for the ranges of ``config.Randomization`` (sourced there), or a dict of its fields (a range set to None is not drawn) |
     | ``render_mode`` | None | "rgb_array" |
     | ``camera`` | "external" | "external", "tip_camera" or "both" (side by side) |

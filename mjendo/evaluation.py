@@ -569,8 +569,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--trial-steps", type=int, default=PAPER_EVAL_STEPS,
                     help="trial length (the paper's 80; longer: what the trial's time costs)")
     ap.add_argument("--anatomy", type=targets.anatomy_arg,
-                    help="other stomachs: a generated one's seed, a built folder, or a set (train, test: "
-                    "trials spread evenly over its stomachs)")
+                    help="other stomachs: a generated one's seed, a built folder, or a set (train, val, test, or "
+                    "seeds of your own as 110-119: trials spread evenly over its stomachs)")
     ap.add_argument("--randomization", type=randomization_arg,
                     help="tissue, load, friction and sensor noise drawn per trial: 'true' for the ranges of "
                     "config.Randomization, or a JSON object of its fields, e.g. '{\"young_scale\": [0.33, 0.34]}'")

@@ -836,7 +836,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--fidelity", choices=list(FIDELITIES), default="fast", help="stomach to evaluate in")
     ap.add_argument("--envs", help="comma-separated subset of FE, SE, DE, UE1, UE2")
     ap.add_argument("--anatomy", type=targets.anatomy_arg,
-                    help="evaluate in other stomachs: a set (test: the held-out anatomies), a seed or a folder")
+                    help="evaluate in other stomachs: a set (test: the held-out anatomies; or seeds of "
+                         "your own as 110-119), a seed or a folder")
     ap.add_argument("--trial-steps", type=int, default=PAPER_EVAL_STEPS,
                     help="evaluation trial length (the paper's 80; longer: what the trial's time costs; validation "
                     "trials stay at 80)")

@@ -44,6 +44,7 @@ from mjendo.config import (
     PAPER_SUCCESS_MM,
     VERSIONS,
     ConfigError,
+    anatomy_set,
     fidelity_preset,
 )
 from mjendo.units import from_mm, to_mm
@@ -791,8 +792,8 @@ def benchmark_maps(name: str, episodes: int, seed: int, workers: int = 2, versio
 
     Resumable: a stomach whose map exists is skipped, so a stopped run goes on where it stopped.
     """
-    for k in ANATOMY_SETS[name]:
-        folder = paths.ANATOMIES_DIR / f"seed-{k}"
+    for k in anatomy_set(name):  # a benchmark set's into the tree; a list of your own's into the cache
+        folder = paths.ANATOMIES_DIR / f"seed-{k}" if name in ANATOMY_SETS else anatomy.anatomy_dir(k)
         if map_path(folder, version).exists():
             print(f"{folder}: map exists, skipped", flush=True)
             continue
@@ -820,7 +821,7 @@ def load_error(path: Path):
 
 
 def anatomy_arg(text: str) -> int | str:
-    """--anatomy: a generated stomach's seed, or a folder."""
+    """--anatomy: a generated stomach's seed, a set (a benchmark set's name or seeds as 110-119), or a folder."""
     return int(text) if text.isdigit() else text
 
 
@@ -832,7 +833,8 @@ def main(argv: list[str] | None = None) -> int:
     m.add_argument("--episodes", type=int, default=400, help="random exploration episodes in free space")
     m.add_argument("--seed", type=int, default=0)
     m.add_argument("--anatomy", type=anatomy_arg, help="another stomach: a generated one's seed, a built folder, or "
-                   f"a benchmark set ({', '.join(ANATOMY_SETS)}: every stomach of it, into models/anatomies/)")
+                   f"a set ({', '.join(ANATOMY_SETS)}: every stomach of it, into models/anatomies/; seeds of your own "
+                   "as 110-119 or 3,5,8-9: into the cache)")
     m.add_argument("--out", type=Path, help="default: targets.json in the stomach's folder")
     m.add_argument("--workers", type=int, default=2, help="processes (the map does not depend on their number)")
     version_help = (f"task version (default {CURRENT_VERSION}): its physics decides which points are reachable, "
@@ -900,7 +902,7 @@ def main(argv: list[str] | None = None) -> int:
             if args.ceiling:
                 print_ceilings(args.list, anatomy.members(args.anatomy), args.phases, args.env, args.per_anatomy)
                 return
-            if isinstance(args.anatomy, str) and args.anatomy in ANATOMY_SETS:
+            if anatomy_set(args.anatomy) is not None:
                 raise ConfigError(f"--anatomy {args.anatomy} is a set of stomachs: add --ceiling for a line per "
                                   "stomach, or give one stomach's seed")
             if args.per_anatomy is not None:
@@ -925,7 +927,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.cmd == "map" and (args.episodes < 1 or args.workers < 1):
             raise ConfigError(f"--episodes and --workers must be >= 1 (got {args.episodes}, {args.workers}): the "
                               "map's random exploration needs episodes, and 400 is the measured map's")
-        if args.cmd == "map" and isinstance(args.anatomy, str) and args.anatomy in ANATOMY_SETS:
+        if args.cmd == "map" and anatomy_set(args.anatomy) is not None:
             benchmark_maps(args.anatomy, args.episodes, args.seed, args.workers, args.version)
             return
         if args.cmd == "map":

@@ -128,6 +128,25 @@ def test_a_set_of_stomachs_is_drawn_per_episode(cache, monkeypatch):
         NavigationTask(task_config(env="DE", anatomy="test"))
 
 
+def test_a_list_of_seeds_is_a_set_of_its_own(cache):
+    # A held-out set of your own without editing config.ANATOMY_SETS: seeds and ranges, drawn per episode as a set.
+    from mjendo.config import anatomy_set
+    from mjendo.envs import EndoscopeEnv
+
+    assert anatomy_set("3,5,8-10") == (3, 5, 8, 9, 10) and anatomy_set("test") == ANATOMY_SETS["test"]
+    assert anatomy_set("7") is None and anatomy_set(7) is None and anatomy_set("my_stomach") is None
+    for bad, word in (("9-8", "runs backwards"), ("5,4-6", "names a stomach twice")):
+        with pytest.raises(ConfigError, match=word):
+            anatomy_set(bad)
+    for seed in (5, 6):
+        write_small_map(anatomy.load(anatomy.stomach_dir(seed)), anatomy.stomach_dir(seed))
+    env = EndoscopeEnv("DE", anatomy="5-6", max_steps=2)
+    assert env.anatomies == [5, 6]
+    assert {env.reset(seed=s)[1]["anatomy"] for s in range(8)} == {5, 6}
+    with pytest.raises(ConfigError, match="a set of stomachs"):
+        NavigationTask(task_config(env="DE", anatomy="5,6"))
+
+
 def test_the_evaluation_spreads_trials_over_a_set_of_stomachs(cache, monkeypatch):
     from mjendo import config
     from mjendo.envs import EndoscopeEnv

@@ -346,7 +346,7 @@ def trial(cfg: StudyConfig, policy: str, seed: int) -> list[dict]:
     mark = run / RUNNING_MARK
     mark.write_text(f"{socket.gethostname()} {os.getpid()}\n")
     try:
-        if will_train(cfg, policy, seed):
+        if not finished(run, train_config(cfg, policy, seed).total_timesteps):  # will_train: not all cached here
             cached = {}  # trials of the weights before this training are not this policy's
             letter, variant = split_spec(policy)
             train(letter, cfg.timesteps, seed, out=cfg.runs, config_file=cfg.config, progress=False,

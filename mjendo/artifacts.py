@@ -241,9 +241,9 @@ def published_variants() -> list[str]:
     return sorted(d.name for d in root.glob("*") if (d / "model.zip").is_file()) if root.is_dir() else []
 
 
-def resolve(spec: str) -> Path:
+def resolve(spec: str, others: tuple[str, ...] = ("baseline", "random")) -> Path:
     """'A'..'E' (shipped), a published variant's name ('E-paper-step'), a policy or run folder, or a model.zip
-    inside one -> the folder."""
+    inside one -> the folder; ``others``: the caller's controllers that are not folders, named in the error."""
     if spec in POLICY_NAMES:
         return paths.policies_dir() / spec
     p = Path(spec)
@@ -253,7 +253,7 @@ def resolve(spec: str) -> Path:
         return p
     if spec in published_variants():
         return paths.policies_dir() / "variants" / spec
-    raise ConfigError(f"unknown policy {spec!r}; valid: {', '.join(POLICY_NAMES)}, baseline, random, a published "
+    raise ConfigError(f"unknown policy {spec!r}; valid: {', '.join((*POLICY_NAMES, *others))}, a published "
                       f"variant ({', '.join(published_variants()) or 'none installed'}), or a policy folder with "
                       "model.zip (e.g. runs/E/seed0)")
 

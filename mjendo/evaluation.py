@@ -131,12 +131,7 @@ def check_controllers(controllers) -> None:
     for c in controllers:
         if c in CONTROLLERS:
             continue
-        try:
-            folder = artifacts.resolve(c)
-        except ConfigError:
-            raise ConfigError(f"unknown policy {c!r}; valid: {', '.join(CONTROLLERS)}, a published variant "
-                              f"({', '.join(artifacts.published_variants()) or 'none installed'}), or a policy "
-                              "folder with model.zip (e.g. runs/E/seed0)") from None
+        folder = artifacts.resolve(c, others=tuple(x for x in CONTROLLERS if x not in POLICY_NAMES))
         if not (artifacts.model_home(folder) / artifacts.MODEL_FILE).exists():
             raise ConfigError(f"{c} holds no {artifacts.MODEL_FILE}: pass a finished run or policy folder")
 

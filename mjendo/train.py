@@ -53,6 +53,8 @@ def make_env(cfg: TrainConfig, rank: int, max_steps: int | None = None):
 
         torch.set_num_threads(1)
         kw = {**asdict(task), "max_steps": max_steps or task.max_steps}
+        if rank < cfg.full_envs:  # the run's first full_envs environments sample the model of record
+            kw["fidelity"] = "full"
         if cfg.train_targets:  # training draws from its own pool; periodic evaluations keep the env's list
             kw["target_list"] = cfg.train_targets
         env = EndoscopeEnv(**kw)

@@ -151,6 +151,10 @@ class TrainConfig:
     uniformly from 0 (0: none; mjendo.demonstrations); the maximum falls linearly to 0 at guide_decay_steps"""
     guide_decay_steps: int = 0
     """steps after which training is unguided (0: the whole budget)"""
+    full_envs: int = 0
+    """of the n_envs training environments, how many run in the full FEM stomach (the rest in `fidelity`, at the
+    same task and physics step): samples from the model of record at a fraction of its cost; periodic
+    evaluations stay in `fidelity`"""
     critic_only: list[str] = field(default_factory=list)
     """observation options (scope_obs, time_obs, phase_obs; on in the task block too) whose blocks only the value
     function sees: an asymmetric actor-critic (mjendo.asymmetric); the policy acts on the rest"""
@@ -196,6 +200,11 @@ class TrainConfig:
         if self.guide_steps and self.task_config().version < 1:
             raise ConfigError("guided starts replay the reachability map's demonstrators, which task version 0 "
                               "(vertex targets) has none of: use version 1 or guide_steps 0")
+        if not 0 <= self.full_envs <= self.n_envs or (self.full_envs and self.backend == "warp"):
+            raise ConfigError(f"full_envs must be between 0 and n_envs ({self.n_envs}) and needs the cpu backend "
+                              f"(got {self.full_envs}, backend {self.backend})")
+        if self.full_envs:
+            task_config(env=self.env, fidelity="full", force_obs=self.force_obs, **self.task)
         if self.critic_only:
             from mjendo.asymmetric import actor_inputs
 

@@ -16,7 +16,7 @@ from mjendo.paths import TRAINING_CONFIG
 from mjendo.policies import PolicyError, PPOController, load_controller
 from mjendo.scene import fingerprint
 from mjendo.task import NavigationTask
-from mjendo.train import latest_checkpoint, load_config, run_folder, target_sampler, train
+from mjendo.train import latest_checkpoint, load_config, make_env, run_folder, target_sampler, train
 from mjendo.train_config import shipped_variant
 
 
@@ -297,6 +297,7 @@ def _yaml_with(tmp_path, edit):
     (lambda r: r["policies"]["E"].update(task={"insertion_mm": 5}), "task block: unknown"),
     (lambda r: r["policies"]["E"].update(task={"force_penalty": -1.0}), "force_penalty must be"),
     (lambda r: r["defaults"]["ppo"].update(lr_schedule="cosine"), "lr_schedule must be"),
+    (lambda r: r["defaults"].update(full_envs=9), r"full_envs must be between 0 and n_envs \(8\)"),
 ])
 def test_training_config_is_validated(tmp_path, edit, message):
     with pytest.raises(ConfigError, match=message):
@@ -328,6 +329,20 @@ def test_a_variant_merges_over_its_policy_and_names_its_run(tmp_path):
     assert d.train_targets == e.train_targets == "A+F" and not d.force_obs and e.force_obs
     with pytest.raises(ConfigError, match="variant free-pool is a variant of policy D or E, not A"):
         load_config("A", TRAINING_CONFIG, "free-pool")
+
+
+def test_a_mixed_run_samples_the_fem_wall_in_its_first_environments():
+    # full_envs: the first environments step the full FEM stomach, the rest the run's fidelity, at one physics step
+    cfg = load_config("E", TRAINING_CONFIG, "paper-step-full-mix")
+    assert cfg.full_envs == 2 and cfg.fidelity == "fast-coarse" and cfg.vec_env == "subproc"
+    envs = [make_env(cfg, rank)().unwrapped for rank in (0, 2)]
+    assert [e.task.cfg.fidelity for e in envs] == ["full", "fast-coarse"]
+    assert [e.task.sim.model.opt.timestep for e in envs] == [0.01, 0.01]
+    full, fast = (e.task.sim.model for e in envs)
+    assert fast.nflexnode == 8 and full.nflexnode == 0 and full.nv > 10 * fast.nv  # per-vertex FEM, not one cell
+    assert cfg.task_config().fidelity == "fast-coarse"  # periodic evaluations and meta.json: the run's own wall
+    with pytest.raises(ConfigError, match="full_envs .* needs the cpu backend"):
+        load_config("E", TRAINING_CONFIG, "paper-step-full-mix", backend="warp")
 
 
 def test_per_policy_ppo_and_task_blocks_merge_into_the_defaults(tmp_path):

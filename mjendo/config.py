@@ -552,6 +552,13 @@ CONTROL_PERIOD_S = 0.1
 # Observations a history_obs policy sees besides the current one (TaskConfig.history_obs): four, as Atari's
 # frame stacks; at 10 Hz the last 0.4 s, a tenth of a breathing cycle.
 HISTORY_STEPS = 4
+# depth_obs (TaskConfig.depth_obs): how far the tip camera's lens (4 mm behind the tip face) sees the lumen wall
+# along five rays, the tip axis and four tilted towards the bending planes. Gastroscopes image 140 degrees
+# (Olympus GIF-H190, a 70 degree half-angle; the tip camera here is 100), so a 30 degree tilt is well inside the
+# picture; their depth of field ends at 100 mm (GIF-H190: 2-100 mm), beyond which a ray reads its range, as one
+# that meets no wall.
+DEPTH_TILT_DEG = 30.0
+DEPTH_RANGE_MM = 100.0
 INSERTION_MM_PER_S = 25.0
 CABLE_MM_PER_S = 4.0
 # A safety-limited feeder: the insertion servo pushes with 3 N at most. With the 10 N of version 0 a scope
@@ -659,6 +666,11 @@ class TaskConfig:
     # Nature 518: 529, stack four frames). A memoryless policy sees the wall only where the tip touches it now; a
     # stomach it has not seen shows its shape and give in how force and tip moved under the last commands.
     history_obs: bool = False
+    # How far the wall is along five rays from the tip (DEPTH_TILT_DEG, DEPTH_RANGE_MM): what the endoscope's own
+    # camera shows of the lumen ahead, as a depth map (stereo or monocular depth estimation) would give it. A policy
+    # that sees the wall only where the tip touches it cannot tell, in a stomach it has not seen, where the wall it
+    # needs is (not the paper's).
+    depth_obs: bool = False
     target_list: str | None = None  # None: the environment's own list (A or B); "A+F": lists joined
     max_steps: int = PAPER_TRAIN_STEPS
     version: int = CURRENT_VERSION  # task version (VERSIONS): scope, gravity, time scales, targets
@@ -721,7 +733,8 @@ def task_config(**kw) -> TaskConfig:
     ver = task_version(int(cfg.version))
     cfg = replace(cfg, version=int(cfg.version), **{k: getattr(ver, k) for k in ACTION_SCALES
                                                     if getattr(cfg, k) is None})
-    for name in ("force_obs", "scope_obs", "time_obs", "phase_obs", "step_obs", "history_obs", "randomize_phase"):
+    for name in ("force_obs", "scope_obs", "time_obs", "phase_obs", "step_obs", "depth_obs", "history_obs",
+                 "randomize_phase"):
         if not isinstance(getattr(cfg, name), bool | np.bool_):
             raise ConfigError(f"{name} must be True or False, not {getattr(cfg, name)!r}")
     parts = cfg.target_list.split("+") if isinstance(cfg.target_list, str) else [cfg.target_list]
@@ -749,7 +762,8 @@ def task_config(**kw) -> TaskConfig:
     if cfg.anatomy is not None:
         _anatomy(cfg)
     cfg = replace(cfg, force_obs=bool(cfg.force_obs), scope_obs=bool(cfg.scope_obs), time_obs=bool(cfg.time_obs),
-                  phase_obs=bool(cfg.phase_obs), step_obs=bool(cfg.step_obs), history_obs=bool(cfg.history_obs),
+                  phase_obs=bool(cfg.phase_obs), step_obs=bool(cfg.step_obs), depth_obs=bool(cfg.depth_obs),
+                  history_obs=bool(cfg.history_obs),
                   randomize_phase=bool(cfg.randomize_phase),
                   max_steps=int(cfg.max_steps))
     substeps(cfg)

@@ -115,11 +115,13 @@ class Simulator:
                                    for c in endoscope.CABLES])
         self.tip_site = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, endoscope.TIP_SITE)
         self.tip_body = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, endoscope.TIP_BODY)
+        self.tip_camera = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_CAMERA, endoscope.TIP_CAMERA)
         self.target_site = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, scene.TARGET_BODY)
         self.target_mocap = m.body_mocapid[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, scene.TARGET_BODY)]
         self.insert_qpos = m.jnt_qposadr[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, endoscope.INSERTION)]
         self.flex = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_FLEX, scene.FLEX)
         self._vert_adr = int(m.flex_vertadr[self.flex]) if self.flex >= 0 else 0
+        self._ray_vert, self._ray_normal = np.zeros(1, np.int32), np.zeros(3)  # mj_rayFlex's outputs (unused)
         # Geoms of the endoscope: every geom on a body below the carriage.
         carriage = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, endoscope.CARRIAGE)
         scope_bodies = {b for b in range(m.nbody) if self._below(m, b, carriage)}
@@ -191,6 +193,26 @@ class Simulator:
     def tip_axis(self) -> np.ndarray:
         """Unit vector along the tip (the tube's local z)."""
         return self.data.site_xmat[self.tip_site].reshape(3, 3)[:, 2].copy()
+
+    def wall_depth(self, tilt_rad: float, range_m: float) -> np.ndarray:
+        """Distance (m) from the tip camera's lens to the lumen wall along the tip axis and four rays tilted
+        ``tilt_rad`` from it towards the tip frame's +x, -x, +y and -y (the bending planes); ``range_m`` where no
+        wall is that near. From the lens, 4 mm behind the tip face: a tip pressing into the wall has its face in it."""
+        out = np.full(5, range_m)
+        if not self.has_stomach:
+            return out
+        frame = self.data.site_xmat[self.tip_site].reshape(3, 3)
+        c, s = np.cos(tilt_rad), np.sin(tilt_rad)
+        axis, x, y = frame[:, 2], frame[:, 0], frame[:, 1]
+        rays = (axis, c * axis + s * x, c * axis - s * x, c * axis + s * y, c * axis - s * y)
+        lens, vert, normal = self.data.cam_xpos[self.tip_camera], self._ray_vert, self._ray_normal
+        for i, ray in enumerate(rays):
+            # layer 0: the flex's surface faces (the lumen and the outer wall); the lumen's come first from inside
+            d = mujoco.mj_rayFlex(self.model, self.data, 0, False, False, True, False, self.flex, lens, ray,
+                                  vert, normal)
+            if 0.0 <= d < range_m:
+                out[i] = d
+        return out
 
     def cable_lengths(self) -> np.ndarray:
         return self.data.ten_length[self.cable_ten].copy()

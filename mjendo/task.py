@@ -8,6 +8,7 @@ converted only here through :mod:`mjendo.units`.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field, replace
 from functools import lru_cache
 from pathlib import Path
@@ -19,6 +20,8 @@ from mjendo import anatomy, mdp, targets
 from mjendo.config import (
     ACTION_SIZE,
     CURRENT_VERSION,
+    DEPTH_RANGE_MM,
+    DEPTH_TILT_DEG,
     HISTORY_STEPS,
     PAPER_ACTION_LIMIT,
     PAPER_EXIT_X_MM,
@@ -46,11 +49,12 @@ TIME_BLOCKS = [("time_left", 1, "share of max_steps", (0.0, 1.0))]
 PHASE_BLOCKS = [("load_phase", 2, "sin, cos of the breathing cycle's phase", (-1.0, 1.0))]
 STEP_BLOCKS = [("previous_cable_actions", 4, "action units", (-PAPER_ACTION_LIMIT, PAPER_ACTION_LIMIT)),
                ("tip_step", 3, "mm", (-1000.0, 1000.0))]
+DEPTH_BLOCKS = [("wall_depth", 5, "mm along the tip axis and 4 tilted rays", (0.0, DEPTH_RANGE_MM))]
 # history_obs: the observation's other blocks as they were at each of the last HISTORY_STEPS steps, newest first;
 # its bounds are theirs (obs_bounds).
 HISTORY_BLOCK = "previous_observations"
 # The task options that add observation blocks, in the order their blocks follow the paper's.
-OBS_OPTIONS = ("force_obs", "scope_obs", "time_obs", "phase_obs", "step_obs", "history_obs")
+OBS_OPTIONS = ("force_obs", "scope_obs", "time_obs", "phase_obs", "step_obs", "depth_obs", "history_obs")
 SETTLE_S = 1.0  # the stomach settles under gravity (and load) before episodes start
 # Start states are snapshots of the stomach in its periodic steady state, this
 # many per load cycle (every 50 ms of a 4 s cycle): an episode starts at its
@@ -66,9 +70,11 @@ ACTION_SCALE_FIELDS = ("control_period_s", "cable_mm_per_unit", "insertion_mm_pe
 
 
 def obs_blocks(force_obs: bool, scope_obs: bool = False, time_obs: bool = False,
-               phase_obs: bool = False, step_obs: bool = False, history_obs: bool = False) -> list[tuple]:
+               phase_obs: bool = False, step_obs: bool = False, depth_obs: bool = False,
+               history_obs: bool = False) -> list[tuple]:
     blocks = OBS_BLOCKS + (FORCE_BLOCKS if force_obs else []) + (SCOPE_BLOCKS if scope_obs else []) \
-        + (TIME_BLOCKS if time_obs else []) + (PHASE_BLOCKS if phase_obs else []) + (STEP_BLOCKS if step_obs else [])
+        + (TIME_BLOCKS if time_obs else []) + (PHASE_BLOCKS if phase_obs else []) + (STEP_BLOCKS if step_obs else []) \
+        + (DEPTH_BLOCKS if depth_obs else [])
     if history_obs:
         n = sum(b[1] for b in blocks)
         blocks = blocks + [(HISTORY_BLOCK, HISTORY_STEPS * n, "the blocks above, newest first", None)]
@@ -76,8 +82,8 @@ def obs_blocks(force_obs: bool, scope_obs: bool = False, time_obs: bool = False,
 
 
 def obs_size(force_obs: bool, scope_obs: bool = False, time_obs: bool = False, phase_obs: bool = False,
-             step_obs: bool = False, history_obs: bool = False) -> int:
-    return sum(b[1] for b in obs_blocks(force_obs, scope_obs, time_obs, phase_obs, step_obs, history_obs))
+             step_obs: bool = False, depth_obs: bool = False, history_obs: bool = False) -> int:
+    return sum(b[1] for b in obs_blocks(force_obs, scope_obs, time_obs, phase_obs, step_obs, depth_obs, history_obs))
 
 
 def obs_options(cfg: TaskConfig) -> dict[str, bool]:
@@ -411,9 +417,11 @@ class NavigationTask:
         left = np.array([1.0 - self.steps / self.cfg.max_steps]) if self.cfg.time_obs else None
         phase = np.array([sim.load_phase()]) if self.cfg.phase_obs else None
         step = (self.prev_cables[None], self.tip_step[None]) if self.cfg.step_obs else None
+        depth = sim.wall_depth(math.radians(DEPTH_TILT_DEG), from_mm(DEPTH_RANGE_MM))[None] \
+            if self.cfg.depth_obs else None
         obs = mdp.observe(np, self.cfg, delta[None], sim.tip_vel()[None], sim.cable_lengths()[None],
                           np.array([self.prev_axial]), np.array([float(self.contact.active)]),
-                          force[None], self._now_low, self._now_high, scope, left, phase, step)[0]
+                          force[None], self._now_low, self._now_high, scope, left, phase, step, depth)[0]
         if not self.cfg.history_obs:
             return obs
         self._last_obs = obs

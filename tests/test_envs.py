@@ -256,6 +256,51 @@ def test_step_observation_is_the_last_command_and_the_tip_displacement_it_made()
     np.testing.assert_array_equal(oq[15:], 0.0)  # a new episode forgets the last one's step
 
 
+def _nearest_face(origin: np.ndarray, ray: np.ndarray, corners: np.ndarray) -> float:
+    """Distance along ``ray`` to the nearest of the triangles ``corners`` (n, 3, 3), Moller-Trumbore; inf if none."""
+    e1, e2 = corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]
+    p = np.cross(ray, e2)
+    det = np.einsum("ij,ij->i", e1, p)
+    ok = np.abs(det) > 1e-15
+    inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
+    s = origin - corners[:, 0]
+    u = np.einsum("ij,ij->i", s, p) * inv
+    q = np.cross(s, e1)
+    v = (q @ ray) * inv
+    t = np.einsum("ij,ij->i", e2, q) * inv
+    hit = ok & (u >= 0) & (v >= 0) & (u + v <= 1) & (t > 0)
+    return float(t[hit].min()) if hit.any() else np.inf
+
+
+def test_depth_observation_is_the_walls_distance_along_the_tip_rays():
+    # Checked against an independent ray cast over the wall's surface triangles (not MuJoCo's): five rays from
+    # the tip camera's lens, 4 mm behind the tip face, along its axis and four tilted 30 degrees towards the
+    # bending planes, each clipped at 100 mm.
+    plain, seeing = EndoscopeEnv("DE"), EndoscopeEnv("DE", depth_obs=True)
+    assert seeing.observation_space.shape == (20,)
+    plain.reset(seed=5)
+    oq, _ = seeing.reset(seed=5)
+    sim = seeing.task.sim
+    m, fl = sim.model, sim.flex
+    adr = m.flex_shelldataadr[fl]
+    shells = m.flex_shell[adr:adr + 3 * m.flex_shellnum[fl]].reshape(-1, 3)  # the wall's surface triangles
+    axial = []
+    for _ in range(30):
+        frame = sim.data.site_xmat[sim.tip_site].reshape(3, 3)
+        lens, corners = sim.tip_pos() - 0.004 * frame[:, 2], sim.vertices()[shells]
+        c, s = np.cos(np.radians(30)), np.sin(np.radians(30))
+        rays = [frame[:, 2]] + [c * frame[:, 2] + sign * s * frame[:, k] for k in (0, 1) for sign in (1, -1)]
+        expected = [min(_nearest_face(lens, r, corners) * 1e3, 100.0) for r in rays]
+        np.testing.assert_allclose(oq[15:], expected, atol=1e-3)
+        axial.append(oq[15])
+        op, *_ = plain.step(np.array([0.4, 0.0, 0.0, 0.0, 0.4]))
+        oq, *_ = seeing.step(np.array([0.4, 0.0, 0.0, 0.0, 0.4]))
+        np.testing.assert_array_equal(op, oq[:15])  # the same physics and the paper's observation
+    assert axial[0] == 100.0 and min(axial) < 6.0  # the wall comes into view as the scope bends and inserts
+    free = EndoscopeEnv("FE", depth_obs=True)
+    np.testing.assert_array_equal(free.reset(seed=5)[0][15:], 100.0)  # no stomach, no wall
+
+
 def test_history_observation_is_the_last_four_observations_newest_first():
     plain, stacked = EndoscopeEnv("DE"), EndoscopeEnv("DE", history_obs=True)
     assert stacked.observation_space.shape == (15 * 5,)

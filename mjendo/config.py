@@ -666,8 +666,8 @@ class TaskConfig:
     # Nature 518: 529, stack four frames). A memoryless policy sees the wall only where the tip touches it now; a
     # stomach it has not seen shows its shape and give in how force and tip moved under the last commands.
     history_obs: bool = False
-    # How far the wall is along five rays from the tip (DEPTH_TILT_DEG, DEPTH_RANGE_MM): what the endoscope's own
-    # camera shows of the lumen ahead, as a depth map (stereo or monocular depth estimation) would give it. A policy
+    # How far the wall is along five rays from the tip camera (DEPTH_TILT_DEG, DEPTH_RANGE_MM): what the endoscope's
+    # own camera shows of the lumen ahead, as a depth map (stereo or monocular depth estimation) would give it. A policy
     # that sees the wall only where the tip touches it cannot tell, in a stomach it has not seen, where the wall it
     # needs is (not the paper's).
     depth_obs: bool = False

@@ -671,6 +671,11 @@ class TaskConfig:
     # that sees the wall only where the tip touches it cannot tell, in a stomach it has not seen, where the wall it
     # needs is (not the paper's).
     depth_obs: bool = False
+    # The lumen surface's normal at the target: which way the mucosa there faces, as the tip camera's picture of
+    # the target (its depth map's surface orientation) shows it. In one stomach the target's position implies it;
+    # in a stomach the policy has not seen, it tells from which side the target must be approached, and so
+    # whether the wall is in the way (not the paper's).
+    normal_obs: bool = False
     target_list: str | None = None  # None: the environment's own list (A or B); "A+F": lists joined
     max_steps: int = PAPER_TRAIN_STEPS
     version: int = CURRENT_VERSION  # task version (VERSIONS): scope, gravity, time scales, targets
@@ -733,8 +738,8 @@ def task_config(**kw) -> TaskConfig:
     ver = task_version(int(cfg.version))
     cfg = replace(cfg, version=int(cfg.version), **{k: getattr(ver, k) for k in ACTION_SCALES
                                                     if getattr(cfg, k) is None})
-    for name in ("force_obs", "scope_obs", "time_obs", "phase_obs", "step_obs", "depth_obs", "history_obs",
-                 "randomize_phase"):
+    for name in ("force_obs", "scope_obs", "time_obs", "phase_obs", "step_obs", "depth_obs", "normal_obs",
+                 "history_obs", "randomize_phase"):
         if not isinstance(getattr(cfg, name), bool | np.bool_):
             raise ConfigError(f"{name} must be True or False, not {getattr(cfg, name)!r}")
     parts = cfg.target_list.split("+") if isinstance(cfg.target_list, str) else [cfg.target_list]
@@ -763,7 +768,7 @@ def task_config(**kw) -> TaskConfig:
         _anatomy(cfg)
     cfg = replace(cfg, force_obs=bool(cfg.force_obs), scope_obs=bool(cfg.scope_obs), time_obs=bool(cfg.time_obs),
                   phase_obs=bool(cfg.phase_obs), step_obs=bool(cfg.step_obs), depth_obs=bool(cfg.depth_obs),
-                  history_obs=bool(cfg.history_obs),
+                  normal_obs=bool(cfg.normal_obs), history_obs=bool(cfg.history_obs),
                   randomize_phase=bool(cfg.randomize_phase),
                   max_steps=int(cfg.max_steps))
     substeps(cfg)

@@ -47,14 +47,15 @@ def outcome(cfg: TaskConfig, tip, target, origin, axis, force, steps, ok) -> dic
 
 
 def observe(xp, cfg: TaskConfig, delta, tip_vel, cable, prev_axial, contact, force, low, high, scope=None,
-            time_left=None, phase=None, step=None, depth=None):
+            time_left=None, phase=None, step=None, depth=None, normal=None):
     """Observation rows (see task.obs_blocks), clipped to their physical bounds; ``xp`` is numpy or torch.
 
     ``scope`` (with ``cfg.scope_obs``): insertion (m), tip position from the paper frame's origin (m), tip axis;
     ``time_left`` (with ``cfg.time_obs``): the share of max_steps still left; ``phase`` (with ``cfg.phase_obs``):
     the breathing cycle's phase as a share of the cycle, observed as its sine and cosine (no jump at the wrap);
     ``step`` (with ``cfg.step_obs``): the last step's commanded cable actions and the tip's displacement over it (m);
-    ``depth`` (with ``cfg.depth_obs``): the wall's distance along the tip's five rays (m).
+    ``depth`` (with ``cfg.depth_obs``): the wall's distance along the tip's five rays (m);
+    ``normal`` (with ``cfg.normal_obs``): the lumen surface's unit normal at the target, into the lumen.
     """
     blocks = [delta * MM_PER_M, tip_vel * MM_PER_M, cable * MM_PER_M, prev_axial[:, None] * 1.0]
     if cfg.force_obs:
@@ -72,5 +73,7 @@ def observe(xp, cfg: TaskConfig, delta, tip_vel, cable, prev_axial, contact, for
         blocks += [cables * 1.0, displacement * MM_PER_M]
     if cfg.depth_obs:
         blocks += [depth * MM_PER_M]
+    if cfg.normal_obs:
+        blocks += [normal * 1.0]
     obs = xp.asarray(xp.concatenate(blocks, 1), dtype=xp.float32)
     return xp.minimum(xp.maximum(obs, low), high)

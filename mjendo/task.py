@@ -50,11 +50,12 @@ PHASE_BLOCKS = [("load_phase", 2, "sin, cos of the breathing cycle's phase", (-1
 STEP_BLOCKS = [("previous_cable_actions", 4, "action units", (-PAPER_ACTION_LIMIT, PAPER_ACTION_LIMIT)),
                ("tip_step", 3, "mm", (-1000.0, 1000.0))]
 DEPTH_BLOCKS = [("wall_depth", 5, "mm along the tip axis and 4 tilted rays", (0.0, DEPTH_RANGE_MM))]
+NORMAL_BLOCKS = [("target_normal", 3, "unit vector into the lumen", (-1.0, 1.0))]
 # history_obs: the observation's other blocks as they were at each of the last HISTORY_STEPS steps, newest first;
 # its bounds are theirs (obs_bounds).
 HISTORY_BLOCK = "previous_observations"
 # The task options that add observation blocks, in the order their blocks follow the paper's.
-OBS_OPTIONS = ("force_obs", "scope_obs", "time_obs", "phase_obs", "step_obs", "depth_obs", "history_obs")
+OBS_OPTIONS = ("force_obs", "scope_obs", "time_obs", "phase_obs", "step_obs", "depth_obs", "normal_obs", "history_obs")
 SETTLE_S = 1.0  # the stomach settles under gravity (and load) before episodes start
 # Start states are snapshots of the stomach in its periodic steady state, this
 # many per load cycle (every 50 ms of a 4 s cycle): an episode starts at its
@@ -71,10 +72,10 @@ ACTION_SCALE_FIELDS = ("control_period_s", "cable_mm_per_unit", "insertion_mm_pe
 
 def obs_blocks(force_obs: bool, scope_obs: bool = False, time_obs: bool = False,
                phase_obs: bool = False, step_obs: bool = False, depth_obs: bool = False,
-               history_obs: bool = False) -> list[tuple]:
+               normal_obs: bool = False, history_obs: bool = False) -> list[tuple]:
     blocks = OBS_BLOCKS + (FORCE_BLOCKS if force_obs else []) + (SCOPE_BLOCKS if scope_obs else []) \
         + (TIME_BLOCKS if time_obs else []) + (PHASE_BLOCKS if phase_obs else []) + (STEP_BLOCKS if step_obs else []) \
-        + (DEPTH_BLOCKS if depth_obs else [])
+        + (DEPTH_BLOCKS if depth_obs else []) + (NORMAL_BLOCKS if normal_obs else [])
     if history_obs:
         n = sum(b[1] for b in blocks)
         blocks = blocks + [(HISTORY_BLOCK, HISTORY_STEPS * n, "the blocks above, newest first", None)]
@@ -82,8 +83,10 @@ def obs_blocks(force_obs: bool, scope_obs: bool = False, time_obs: bool = False,
 
 
 def obs_size(force_obs: bool, scope_obs: bool = False, time_obs: bool = False, phase_obs: bool = False,
-             step_obs: bool = False, depth_obs: bool = False, history_obs: bool = False) -> int:
-    return sum(b[1] for b in obs_blocks(force_obs, scope_obs, time_obs, phase_obs, step_obs, depth_obs, history_obs))
+             step_obs: bool = False, depth_obs: bool = False, normal_obs: bool = False,
+             history_obs: bool = False) -> int:
+    return sum(b[1] for b in obs_blocks(force_obs, scope_obs, time_obs, phase_obs, step_obs, depth_obs, normal_obs,
+                                        history_obs))
 
 
 def obs_options(cfg: TaskConfig) -> dict[str, bool]:
@@ -161,6 +164,7 @@ class NavigationTask:
         self.axis = self.stomach.axis
         self.origin = self.stomach.entry - from_mm(PAPER_EXIT_X_MM) * self.axis
         self._fe_targets = None if self.sim.has_stomach else free_targets(c.fidelity, c.version, stomach)
+        self._normal_stencils = self._target_normal_stencils() if c.normal_obs else None
         self._starts = self._settle()
         self._settled = self._starts[0]
         self.target = int(self.targets[0])
@@ -300,6 +304,29 @@ class NavigationTask:
             else self.sim.vertices(self.target_tri[r])
         return self.target_bary[r] @ corners
 
+    def _target_normal_stencils(self) -> list[tuple[np.ndarray, list[np.ndarray]]]:
+        """Per listed target: the lumen vertices around its triangle's corners and, per corner, the lumen faces
+        at it (in those vertices' indices): what its surface normal is interpolated from."""
+        faces = targets.lumen_triangles(self.stomach)
+        stencils = []
+        for tri in self.target_tri:
+            around = [faces[np.any(faces == v, axis=1)] for v in tri]
+            ids, local = np.unique(np.concatenate(around), return_inverse=True)
+            stencils.append((ids, np.split(local.reshape(-1, 3), np.cumsum([len(f) for f in around])[:-1])))
+        return stencils
+
+    def target_normal(self) -> np.ndarray:
+        """The lumen surface's unit normal at the target now, into the lumen: its corners' area-weighted vertex
+        normals over the lumen's faces (which the wall's boundary orients out of the tissue), blended by the
+        target's barycentric weights, so it turns smoothly as the wall moves and across triangles."""
+        ids, corner_faces = self._normal_stencils[self._row]
+        p = self._fe_targets[ids] if self._fe_targets is not None else self.sim.vertices(ids)
+        normal = np.zeros(3)
+        for weight, f in zip(self.target_bary[self._row], corner_faces, strict=True):
+            n = np.cross(p[f[:, 1]] - p[f[:, 0]], p[f[:, 2]] - p[f[:, 0]]).sum(axis=0)
+            normal += weight * n / np.linalg.norm(n)
+        return normal / np.linalg.norm(normal)
+
     def push_near_target(self, contact, sigma_mm: float) -> np.ndarray:
         """The scope's push on the wall (N) from a detailed contact reading, each contact weighted by
         exp(-d^2 / 2 sigma^2) of its distance d to where the wall carries the target: what the target give
@@ -419,9 +446,10 @@ class NavigationTask:
         step = (self.prev_cables[None], self.tip_step[None]) if self.cfg.step_obs else None
         depth = sim.wall_depth(math.radians(DEPTH_TILT_DEG), from_mm(DEPTH_RANGE_MM))[None] \
             if self.cfg.depth_obs else None
+        normal = self.target_normal()[None] if self.cfg.normal_obs else None
         obs = mdp.observe(np, self.cfg, delta[None], sim.tip_vel()[None], sim.cable_lengths()[None],
                           np.array([self.prev_axial]), np.array([float(self.contact.active)]),
-                          force[None], self._now_low, self._now_high, scope, left, phase, step, depth)[0]
+                          force[None], self._now_low, self._now_high, scope, left, phase, step, depth, normal)[0]
         if not self.cfg.history_obs:
             return obs
         self._last_obs = obs

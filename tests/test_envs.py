@@ -301,6 +301,39 @@ def test_depth_observation_is_the_walls_distance_along_the_tip_rays():
     np.testing.assert_array_equal(free.reset(seed=5)[0][15:], 100.0)  # no stomach, no wall
 
 
+def test_normal_observation_is_the_lumen_surface_facing_the_scope_at_the_target():
+    # Checked against each target triangle's own face normal from its corners now (not the vertex normals the
+    # task blends): the observed normal lies along it, faces the scope (into the lumen, where the tip starts),
+    # and turns as the moving wall does.
+    plain, seeing = EndoscopeEnv("UE2"), EndoscopeEnv("UE2", normal_obs=True)
+    assert seeing.observation_space.shape == (18,)
+    task = seeing.task
+    seeing.reset(seed=5)
+    tip = task.sim.tip_pos()
+    for index in task.targets:
+        oq, _ = seeing.reset(seed=5, options={"target_index": int(index)})
+        corners = task.sim.vertices(task.target_tri[task._row])
+        face = np.cross(corners[1] - corners[0], corners[2] - corners[0])
+        assert np.linalg.norm(oq[15:]) == pytest.approx(1.0, abs=1e-6)
+        assert oq[15:] @ face / np.linalg.norm(face) > 0.95  # along the face normal, on the lumen's side
+        assert oq[15:] @ (tip - task.target_pos()) > 0.0  # the scope at the cardia sees the target's face
+    plain.reset(seed=5, options={"target_index": int(task.targets[0])})
+    first, _ = seeing.reset(seed=5, options={"target_index": int(task.targets[0])})
+    turn = 0.0
+    for _ in range(40):
+        op, *_ = plain.step(np.array([0.4, 0.0, 0.0, 0.0, 0.4]))
+        oq, *_ = seeing.step(np.array([0.4, 0.0, 0.0, 0.0, 0.4]))
+        np.testing.assert_array_equal(op, oq[:15])  # the same physics and the paper's observation
+        corners = task.sim.vertices(task.target_tri[task._row])
+        face = np.cross(corners[1] - corners[0], corners[2] - corners[0])
+        assert oq[15:] @ face / np.linalg.norm(face) > 0.95
+        turn = max(turn, np.degrees(np.arccos(min(float(oq[15:] @ first[15:]), 1.0))))
+    assert turn > 0.5  # the wall's motion turns the target's face (degrees)
+    free = EndoscopeEnv("FE", normal_obs=True)
+    o0, _ = free.reset(seed=5)
+    np.testing.assert_allclose(free.step(np.full(5, 0.4))[0][15:], o0[15:], atol=1e-6)  # FE: the static wall's
+
+
 def test_history_observation_is_the_last_four_observations_newest_first():
     plain, stacked = EndoscopeEnv("DE"), EndoscopeEnv("DE", history_obs=True)
     assert stacked.observation_space.shape == (15 * 5,)

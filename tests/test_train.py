@@ -395,6 +395,7 @@ def test_same_seed_same_machine_trains_bit_identical_weights(short_run, tmp_path
     ("paired", 11, 15, (0.0, 1.0), 0.5, 60),   # D's 11 inputs and E's contact indicator, which flips once it presses
     ("paper-step-history", 11, 75, (0.0, 1.0), 0.5, 60),  # the same, then four past observations of all 15
     ("anatomies-depth", 15, 20, (1.0, 100.0), 5.0, 20),   # the wall's distance along the tip axis, in mm
+    ("anatomies-normal", 15, 18, (-1.0, 1.0), 0.05, 20),  # the target's surface normal, a unit vector
 ])
 def test_a_fine_tune_that_adds_inputs_starts_acting_and_valuing_as_its_source(monkeypatch, variant, n, size,
                                                                                mean_range, spread, steps):
@@ -447,7 +448,7 @@ def test_a_fine_tune_adds_inputs_only_after_the_sources(monkeypatch):
     cfg.task = {**cfg.task, "time_obs": True}  # wants the scope's state and the time left
     monkeypatch.setattr(artifacts, "obs_options",
                         lambda _d: {"force_obs": True, "scope_obs": False, "time_obs": True, "phase_obs": False,
-                                    "step_obs": False, "depth_obs": False,
+                                    "step_obs": False, "depth_obs": False, "normal_obs": False,
                                     "history_obs": False})
     with pytest.raises(ConfigError, match="after the source's inputs, not drop or reorder them"):
         train_module._start_from(cfg, None)  # the scope's block would land before the source's time
@@ -457,7 +458,7 @@ def test_a_fine_tune_adds_inputs_only_after_the_sources(monkeypatch):
     cfg.task = {**cfg.task, "scope_obs": False, "time_obs": True, "phase_obs": True}
     monkeypatch.setattr(artifacts, "obs_options",
                         lambda _d: {"force_obs": True, "scope_obs": False, "time_obs": False, "phase_obs": True,
-                                    "step_obs": False, "depth_obs": False,
+                                    "step_obs": False, "depth_obs": False, "normal_obs": False,
                                     "history_obs": False})
     with pytest.raises(ConfigError, match="breathing phase .* not drop or reorder"):
         train_module._start_from(cfg, None)  # the time left would land before the source's phase

@@ -46,8 +46,9 @@ class PPOController:
         """Refuse a task whose observation or action meaning differs from the one the policy trained in."""
         given = obs_size(**obs_options(task.cfg))
         if self.n_obs != given:
-            fits = [", ".join(f"{k}={v}" for k, v in zip(OBS_OPTIONS, on, strict=True))
-                    for on in itertools.product((False, True), repeat=len(OBS_OPTIONS)) if obs_size(*on) == self.n_obs]
+            combos = [dict(zip(OBS_OPTIONS, on, strict=True))
+                      for on in itertools.product((False, True), repeat=len(OBS_OPTIONS))]
+            fits = [", ".join(f"{k}={v}" for k, v in on.items()) for on in combos if obs_size(**on) == self.n_obs]
             raise PolicyError(f"policy {self.name} expects {self.n_obs} observations but the task gives {given}: "
                               f"use {' or '.join(fits) or 'the task the policy was trained in'}")
         trained = artifacts.trained_task(self.meta)

@@ -54,8 +54,11 @@ NORMAL_BLOCKS = [("target_normal", 3, "unit vector into the lumen", (-1.0, 1.0))
 # history_obs: the observation's other blocks as they were at each of the last HISTORY_STEPS steps, newest first;
 # its bounds are theirs (obs_bounds).
 HISTORY_BLOCK = "previous_observations"
-# The task options that add observation blocks, in the order their blocks follow the paper's.
-OBS_OPTIONS = ("force_obs", "scope_obs", "time_obs", "phase_obs", "step_obs", "depth_obs", "normal_obs", "history_obs")
+# The task options that add observation blocks, in the order their blocks follow the paper's (history_obs last).
+OPTION_BLOCKS = {"force_obs": FORCE_BLOCKS, "scope_obs": SCOPE_BLOCKS, "time_obs": TIME_BLOCKS,
+                 "phase_obs": PHASE_BLOCKS, "step_obs": STEP_BLOCKS, "depth_obs": DEPTH_BLOCKS,
+                 "normal_obs": NORMAL_BLOCKS}
+OBS_OPTIONS = (*OPTION_BLOCKS, "history_obs")
 SETTLE_S = 1.0  # the stomach settles under gravity (and load) before episodes start
 # Start states are snapshots of the stomach in its periodic steady state, this
 # many per load cycle (every 50 ms of a 4 s cycle): an episode starts at its
@@ -70,23 +73,20 @@ TARGET_YELLOW = (1.0, 0.85, 0.0, 1.0)
 ACTION_SCALE_FIELDS = ("control_period_s", "cable_mm_per_unit", "insertion_mm_per_unit")
 
 
-def obs_blocks(force_obs: bool, scope_obs: bool = False, time_obs: bool = False,
-               phase_obs: bool = False, step_obs: bool = False, depth_obs: bool = False,
-               normal_obs: bool = False, history_obs: bool = False) -> list[tuple]:
-    blocks = OBS_BLOCKS + (FORCE_BLOCKS if force_obs else []) + (SCOPE_BLOCKS if scope_obs else []) \
-        + (TIME_BLOCKS if time_obs else []) + (PHASE_BLOCKS if phase_obs else []) + (STEP_BLOCKS if step_obs else []) \
-        + (DEPTH_BLOCKS if depth_obs else []) + (NORMAL_BLOCKS if normal_obs else [])
-    if history_obs:
+def obs_blocks(force_obs: bool, **options: bool) -> list[tuple]:
+    """The observation's blocks (name, size, unit, bounds) with the given OBS_OPTIONS on, in their order."""
+    on = {"force_obs": force_obs, **options}
+    if not set(on) <= set(OBS_OPTIONS):
+        raise TypeError(f"unknown observation options {sorted(set(on) - set(OBS_OPTIONS))}; valid: {OBS_OPTIONS}")
+    blocks = OBS_BLOCKS + [b for name, more in OPTION_BLOCKS.items() if on.get(name) for b in more]
+    if on.get("history_obs"):
         n = sum(b[1] for b in blocks)
         blocks = blocks + [(HISTORY_BLOCK, HISTORY_STEPS * n, "the blocks above, newest first", None)]
     return blocks
 
 
-def obs_size(force_obs: bool, scope_obs: bool = False, time_obs: bool = False, phase_obs: bool = False,
-             step_obs: bool = False, depth_obs: bool = False, normal_obs: bool = False,
-             history_obs: bool = False) -> int:
-    return sum(b[1] for b in obs_blocks(force_obs, scope_obs, time_obs, phase_obs, step_obs, depth_obs, normal_obs,
-                                        history_obs))
+def obs_size(force_obs: bool, **options: bool) -> int:
+    return sum(b[1] for b in obs_blocks(force_obs, **options))
 
 
 def obs_options(cfg: TaskConfig) -> dict[str, bool]:

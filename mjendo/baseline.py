@@ -10,13 +10,17 @@ what free-space kinematics achieves without the CAN strategy.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import mujoco
 import numpy as np
 
 from mjendo.config import PAPER_ACTION_LIMIT, Endoscope
 from mjendo.endoscope import LINK_PREFIX
-from mjendo.task import NavigationTask
 from mjendo.units import from_mm
+
+if TYPE_CHECKING:  # the task runs this controller under its own actions (TaskConfig.residual)
+    from mjendo.task import NavigationTask
 
 
 def arc_tip(theta: np.ndarray, length: float) -> np.ndarray:

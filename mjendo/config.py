@@ -552,6 +552,9 @@ CONTROL_PERIOD_S = 0.1
 # Observations a history_obs policy sees besides the current one (TaskConfig.history_obs): four, as Atari's
 # frame stacks; at 10 Hz the last 0.4 s, a tenth of a breathing cycle.
 HISTORY_STEPS = 4
+# residual: the policy's action, times this, is added to the baseline's; 2 lets it reverse a saturated baseline
+# command (0.4 + 2 x -0.4 = -0.4), which the wall's strategies need (retract where the baseline inserts). Ours.
+RESIDUAL_GAIN = 2.0
 # depth_obs (TaskConfig.depth_obs): how far the tip camera's lens (4 mm behind the tip face) sees the lumen wall
 # along five rays, the tip axis and four tilted towards the bending planes. Gastroscopes image 140 degrees
 # (Olympus GIF-H190, a 70 degree half-angle; the tip camera here is 100), so a 30 degree tilt is well inside the
@@ -676,6 +679,12 @@ class TaskConfig:
     # in a stomach the policy has not seen, it tells from which side the target must be approached, and so
     # whether the wall is in the way (not the paper's).
     normal_obs: bool = False
+    # The action corrects a classic controller's instead of replacing it (residual policy learning: Silver et al.
+    # 2018, arXiv:1812.06298; Johannink et al. 2019, ICRA): the applied action is the damped-least-squares
+    # baseline's (mjendo.baseline) plus RESIDUAL_GAIN times the policy's, clipped to the box, and the baseline's
+    # action is observed. The baseline aims in free space in any stomach without training; the policy learns where
+    # the wall must be used (not the paper's).
+    residual: bool = False
     target_list: str | None = None  # None: the environment's own list (A or B); "A+F": lists joined
     max_steps: int = PAPER_TRAIN_STEPS
     version: int = CURRENT_VERSION  # task version (VERSIONS): scope, gravity, time scales, targets
@@ -739,7 +748,7 @@ def task_config(**kw) -> TaskConfig:
     cfg = replace(cfg, version=int(cfg.version), **{k: getattr(ver, k) for k in ACTION_SCALES
                                                     if getattr(cfg, k) is None})
     for name in ("force_obs", "scope_obs", "time_obs", "phase_obs", "step_obs", "depth_obs", "normal_obs",
-                 "history_obs", "randomize_phase"):
+                 "residual", "history_obs", "randomize_phase"):
         if not isinstance(getattr(cfg, name), bool | np.bool_):
             raise ConfigError(f"{name} must be True or False, not {getattr(cfg, name)!r}")
     parts = cfg.target_list.split("+") if isinstance(cfg.target_list, str) else [cfg.target_list]
@@ -768,7 +777,7 @@ def task_config(**kw) -> TaskConfig:
         _anatomy(cfg)
     cfg = replace(cfg, force_obs=bool(cfg.force_obs), scope_obs=bool(cfg.scope_obs), time_obs=bool(cfg.time_obs),
                   phase_obs=bool(cfg.phase_obs), step_obs=bool(cfg.step_obs), depth_obs=bool(cfg.depth_obs),
-                  normal_obs=bool(cfg.normal_obs), history_obs=bool(cfg.history_obs),
+                  normal_obs=bool(cfg.normal_obs), residual=bool(cfg.residual), history_obs=bool(cfg.history_obs),
                   randomize_phase=bool(cfg.randomize_phase),
                   max_steps=int(cfg.max_steps))
     substeps(cfg)

@@ -17,6 +17,7 @@ import mujoco
 import numpy as np
 
 from mjendo import anatomy, mdp, targets
+from mjendo.baseline import DLSController
 from mjendo.config import (
     ACTION_SIZE,
     CURRENT_VERSION,
@@ -25,6 +26,7 @@ from mjendo.config import (
     HISTORY_STEPS,
     PAPER_ACTION_LIMIT,
     PAPER_EXIT_X_MM,
+    RESIDUAL_GAIN,
     TaskConfig,
     default_target_list,
     substeps,
@@ -51,13 +53,14 @@ STEP_BLOCKS = [("previous_cable_actions", 4, "action units", (-PAPER_ACTION_LIMI
                ("tip_step", 3, "mm", (-1000.0, 1000.0))]
 DEPTH_BLOCKS = [("wall_depth", 5, "mm along the tip axis and 4 tilted rays", (0.0, DEPTH_RANGE_MM))]
 NORMAL_BLOCKS = [("target_normal", 3, "unit vector into the lumen", (-1.0, 1.0))]
+RESIDUAL_BLOCKS = [("baseline_action", 5, "action units", (-PAPER_ACTION_LIMIT, PAPER_ACTION_LIMIT))]
 # history_obs: the observation's other blocks as they were at each of the last HISTORY_STEPS steps, newest first;
 # its bounds are theirs (obs_bounds).
 HISTORY_BLOCK = "previous_observations"
 # The task options that add observation blocks, in the order their blocks follow the paper's (history_obs last).
 OPTION_BLOCKS = {"force_obs": FORCE_BLOCKS, "scope_obs": SCOPE_BLOCKS, "time_obs": TIME_BLOCKS,
                  "phase_obs": PHASE_BLOCKS, "step_obs": STEP_BLOCKS, "depth_obs": DEPTH_BLOCKS,
-                 "normal_obs": NORMAL_BLOCKS}
+                 "normal_obs": NORMAL_BLOCKS, "residual": RESIDUAL_BLOCKS}
 OBS_OPTIONS = (*OPTION_BLOCKS, "history_obs")
 SETTLE_S = 1.0  # the stomach settles under gravity (and load) before episodes start
 # Start states are snapshots of the stomach in its periodic steady state, this
@@ -165,6 +168,9 @@ class NavigationTask:
         self.origin = self.stomach.entry - from_mm(PAPER_EXIT_X_MM) * self.axis
         self._fe_targets = None if self.sim.has_stomach else free_targets(c.fidelity, c.version, stomach)
         self._normal_stencils = self._target_normal_stencils() if c.normal_obs else None
+        # residual: the controller whose action the policy's corrects, and its action for the state observed last
+        self._base = DLSController(self) if c.residual else None
+        self.base_action = np.zeros(ACTION_SIZE)
         self._starts = self._settle()
         self._settled = self._starts[0]
         self.target = int(self.targets[0])
@@ -247,6 +253,8 @@ class NavigationTask:
             self._randomize(rng)
         mujoco.mj_forward(sim.model, sim.data)
         self.contact = sim.contact()
+        if self._base is not None:
+            self._base.reset(self)
         return self.set_target(int(rng.choice(self.targets, p=self.target_p)))
 
     def _randomize(self, rng: np.random.Generator) -> None:
@@ -371,6 +379,8 @@ class NavigationTask:
 
     def step(self, action) -> StepResult:
         a = self.clip_action(action)
+        if self._base is not None:  # the policy corrects the baseline's action for the state it observed
+            a = np.clip(self.base_action + RESIDUAL_GAIN * a, -PAPER_ACTION_LIMIT, PAPER_ACTION_LIMIT)
         sim = self.sim
         done = a * self._actuation_gains()
         lim = sim.cable_pull_max
@@ -447,9 +457,13 @@ class NavigationTask:
         depth = sim.wall_depth(math.radians(DEPTH_TILT_DEG), from_mm(DEPTH_RANGE_MM))[None] \
             if self.cfg.depth_obs else None
         normal = self.target_normal()[None] if self.cfg.normal_obs else None
+        if self._base is not None:
+            self.base_action = self._base.act(None, self)
+        base = self.base_action[None] if self._base is not None else None
         obs = mdp.observe(np, self.cfg, delta[None], sim.tip_vel()[None], sim.cable_lengths()[None],
                           np.array([self.prev_axial]), np.array([float(self.contact.active)]),
-                          force[None], self._now_low, self._now_high, scope, left, phase, step, depth, normal)[0]
+                          force[None], self._now_low, self._now_high, scope, left, phase, step, depth, normal,
+                          base)[0]
         if not self.cfg.history_obs:
             return obs
         self._last_obs = obs

@@ -12,7 +12,7 @@ from mjendo import targets
 from mjendo.baseline import DLSController
 from mjendo.config import ConfigError
 from mjendo.envs import EndoscopeEnv
-from mjendo.rollout import run
+from mjendo.rollout import episode, run
 
 IDS = [f"mjendo/{e}-v{v}" for v in (1, 0) for e in ("FE", "SE", "DE", "UE1", "UE2")] + ["endogym-v0"]
 
@@ -332,6 +332,27 @@ def test_normal_observation_is_the_lumen_surface_facing_the_scope_at_the_target(
     free = EndoscopeEnv("FE", normal_obs=True)
     o0, _ = free.reset(seed=5)
     np.testing.assert_allclose(free.step(np.full(5, 0.4))[0][15:], o0[15:], atol=1e-6)  # FE: the static wall's
+
+
+def test_residual_actions_correct_the_baseline_controllers():
+    # A policy that adds nothing drives the scope exactly as the DLS baseline does alone; any other action is
+    # added, doubled, to the baseline's for the state it observed, and the sum clipped to the action box.
+    plain, residual = EndoscopeEnv("DE"), EndoscopeEnv("DE", residual=True)
+    assert residual.observation_space.shape == (20,)
+    alone = [s.info["distance_mm"] for s in episode(plain, DLSController(plain.task), seed=2)]
+    zero = type("Zero", (), {"reset": lambda self, task: None, "act": lambda self, obs, task: np.zeros(5)})()
+    corrected = [s.info["distance_mm"] for s in episode(residual, zero, seed=2)]
+    assert corrected == alone and alone[-1] < 3.0  # the baseline reaches this target, residual or not
+    obs, _ = residual.reset(seed=3)
+    base = obs[15:].copy()
+    assert np.abs(base).max() > 0.1  # the baseline's action for the start state is observed
+    np.testing.assert_allclose(base, residual.task._base.act(None, residual.task), atol=1e-6)
+    action = np.array([0.1, -0.4, 0.0, 0.4, -0.4])
+    obs, *_ = residual.step(action)
+    applied = np.clip(base + 2.0 * action, -0.4, 0.4)
+    np.testing.assert_allclose(residual.task.prev_cables, applied[:4], atol=1e-6)
+    assert obs[10] == pytest.approx(applied[4], abs=1e-6)  # the previous axial action is the applied one
+    assert applied[4] < 0.0 < base[4]  # twice the policy's action reverses an inserting baseline
 
 
 def test_history_observation_is_the_last_four_observations_newest_first():

@@ -15,7 +15,7 @@ from mjendo.envs import EndoscopeEnv
 from mjendo.paths import TRAINING_CONFIG
 from mjendo.policies import PolicyError, PPOController, load_controller
 from mjendo.scene import fingerprint
-from mjendo.task import NavigationTask
+from mjendo.task import OBS_OPTIONS, NavigationTask
 from mjendo.train import latest_checkpoint, load_config, make_env, run_folder, target_sampler, train
 from mjendo.train_config import shipped_variant
 
@@ -449,7 +449,7 @@ def test_a_fine_tune_adds_inputs_only_after_the_sources(monkeypatch):
     monkeypatch.setattr(artifacts, "obs_options",
                         lambda _d: {"force_obs": True, "scope_obs": False, "time_obs": True, "phase_obs": False,
                                     "step_obs": False, "depth_obs": False, "normal_obs": False,
-                                    "history_obs": False})
+                                    "residual": False, "history_obs": False})
     with pytest.raises(ConfigError, match="after the source's inputs, not drop or reorder them"):
         train_module._start_from(cfg, None)  # the scope's block would land before the source's time
     cfg.task = {**cfg.task, "time_obs": False}
@@ -459,9 +459,23 @@ def test_a_fine_tune_adds_inputs_only_after_the_sources(monkeypatch):
     monkeypatch.setattr(artifacts, "obs_options",
                         lambda _d: {"force_obs": True, "scope_obs": False, "time_obs": False, "phase_obs": True,
                                     "step_obs": False, "depth_obs": False, "normal_obs": False,
-                                    "history_obs": False})
+                                    "residual": False, "history_obs": False})
     with pytest.raises(ConfigError, match="breathing phase .* not drop or reorder"):
         train_module._start_from(cfg, None)  # the time left would land before the source's phase
+
+
+def test_a_fine_tune_keeps_whether_actions_correct_the_baseline(monkeypatch):
+    from mjendo import train as train_module
+
+    cfg = load_config("E", TRAINING_CONFIG, "anatomies-residual")
+    cfg.init_from = "models/policies/E"  # acts alone: its actions would mean something else under residual
+    with pytest.raises(ConfigError, match="acts alone and this run corrects the baseline.*train from scratch"):
+        train_module._start_from(cfg, None)
+    cfg.task = {**cfg.task, "residual": False}
+    monkeypatch.setattr(artifacts, "obs_options", lambda _d: {**{k: False for k in OBS_OPTIONS},
+                                                              "force_obs": True, "residual": True})
+    with pytest.raises(ConfigError, match="corrects the baseline controller's actions .* and this run does not"):
+        train_module._start_from(cfg, None)
 
 
 def test_an_asymmetric_critic_values_inputs_the_policy_never_acts_on(short_run, tmp_path):

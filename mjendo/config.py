@@ -679,6 +679,12 @@ class TaskConfig:
     # in a stomach the policy has not seen, it tells from which side the target must be approached, and so
     # whether the wall is in the way (not the paper's).
     normal_obs: bool = False
+    # The stomach map's plan for the target (targets.json: measured for every stomach before any trial, as planning
+    # on the patient's pre-operative CT would): its free-space distance, whether it needs the wall, and the scripted
+    # way the map found to it in the static stomach (targets.plan_vector). In one stomach a target's position
+    # implies it; in a stomach the policy has not seen, it says at the first step whether and how the wall must be
+    # used (not the paper's).
+    plan_obs: bool = False
     # The action corrects a classic controller's instead of replacing it (residual policy learning: Silver et al.
     # 2018, arXiv:1812.06298; Johannink et al. 2019, ICRA): the applied action is the damped-least-squares
     # baseline's (mjendo.baseline) plus RESIDUAL_GAIN times the policy's, clipped to the box, and the baseline's
@@ -747,8 +753,7 @@ def task_config(**kw) -> TaskConfig:
     ver = task_version(int(cfg.version))
     cfg = replace(cfg, version=int(cfg.version), **{k: getattr(ver, k) for k in ACTION_SCALES
                                                     if getattr(cfg, k) is None})
-    for name in ("force_obs", "scope_obs", "time_obs", "phase_obs", "step_obs", "depth_obs", "normal_obs",
-                 "residual", "history_obs", "randomize_phase"):
+    for name in _SWITCHES:
         if not isinstance(getattr(cfg, name), bool | np.bool_):
             raise ConfigError(f"{name} must be True or False, not {getattr(cfg, name)!r}")
     parts = cfg.target_list.split("+") if isinstance(cfg.target_list, str) else [cfg.target_list]
@@ -775,16 +780,15 @@ def task_config(**kw) -> TaskConfig:
         substeps(replace(cfg, timestep_s=dt))  # every drawn step must divide the control period
     if cfg.anatomy is not None:
         _anatomy(cfg)
-    cfg = replace(cfg, force_obs=bool(cfg.force_obs), scope_obs=bool(cfg.scope_obs), time_obs=bool(cfg.time_obs),
-                  phase_obs=bool(cfg.phase_obs), step_obs=bool(cfg.step_obs), depth_obs=bool(cfg.depth_obs),
-                  normal_obs=bool(cfg.normal_obs), residual=bool(cfg.residual), history_obs=bool(cfg.history_obs),
-                  randomize_phase=bool(cfg.randomize_phase),
-                  max_steps=int(cfg.max_steps))
+    cfg = replace(cfg, **{k: bool(getattr(cfg, k)) for k in _SWITCHES}, max_steps=int(cfg.max_steps))
     substeps(cfg)
     return cfg
 
 
 ACTION_SCALES = ("control_period_s", "cable_mm_per_unit", "insertion_mm_per_unit")
+# TaskConfig's on/off fields (numpy's bools accepted, stored as Python's).
+_SWITCHES = ("force_obs", "scope_obs", "time_obs", "phase_obs", "step_obs", "depth_obs", "normal_obs", "plan_obs",
+             "residual", "history_obs", "randomize_phase")
 
 
 def _anatomy(cfg: TaskConfig) -> None:

@@ -42,7 +42,7 @@ class EndoscopeEnv(gym.Env):
 
     ## Observation space
 
-    ``Box(low, high, (11,), (15,), with ``scope_obs`` 7 more, with ``time_obs`` 1 more, with ``phase_obs`` 2 more, with ``step_obs`` 7 more, with ``depth_obs`` 5 more, with ``normal_obs`` 3 more, with ``residual`` 5 more, with ``history_obs`` four times the rest more, float32)``; world frame. The bounds are physical
+    ``Box(low, high, (11,), (15,), with ``scope_obs`` 7 more, with ``time_obs`` 1 more, with ``phase_obs`` 2 more, with ``step_obs`` 7 more, with ``depth_obs`` 5 more, with ``normal_obs`` 3 more, with ``plan_obs`` 7 more, with ``residual`` 5 more, with ``history_obs`` four times the rest more, float32)``; world frame. The bounds are physical
     (1 m, 5 m/s, 100 N) and observations are clipped to them.
 
     | index | observation | unit |
@@ -62,6 +62,8 @@ class EndoscopeEnv(gym.Env):
     | +4-6 | the tip's displacement over the previous step, ``step_obs`` only | mm |
     | +0-4 | the lumen wall's distance from the tip camera's lens (4 mm behind the tip face) along the tip axis and four rays tilted 30 degrees towards +x, -x, +y, -y (100 where no wall is nearer), ``depth_obs=True`` only (after the blocks above) | mm |
     | +0-2 | the lumen surface's normal at the target, into the lumen, ``normal_obs=True`` only (after the blocks above) | unit vector |
+    | +0 | the target's free-space distance in the stomach's map, ``plan_obs=True`` only (after the blocks above) | mm |
+    | +1-6 | the map's plan for the target: 1 if it needs the wall; the recorded demonstrator's bending while inserting (2), its quarter turn at depth (2) and the share of the trial before the turn (``mjendo.targets.plan_vector``; 0 for free targets), ``plan_obs`` only | - |
     | +0-4 | the DLS baseline's action for this state, which the next action corrects, ``residual=True`` only (after the blocks above) | action units |
     | +0-4n | the last four observations' entries above (n of them), newest first, ``history_obs=True`` only (last of all) | theirs |
 
@@ -90,6 +92,7 @@ class EndoscopeEnv(gym.Env):
     | ``step_obs`` | False | include what the previous step did: its cable actions and the tip's displacement (not the paper's) |
     | ``depth_obs`` | False | include how far the wall is along five rays from the tip, as the tip camera's depth map gives it (not the paper's) |
     | ``normal_obs`` | False | include which way the wall faces at the target, as the tip camera's picture of it shows (not the paper's) |
+    | ``plan_obs`` | False | include the stomach map's plan for the target: its free-space distance and the scripted way to it, as planning on a pre-operative CT would give (not the paper's) |
     | ``residual`` | False | the action corrects the DLS baseline's (``mjendo.baseline``): applied is the baseline's action plus twice the policy's, clipped to [-0.4, 0.4]; the baseline's action is observed (residual policy learning; not the paper's) |
     | ``history_obs`` | False | include the last four observations, a frame stack (not the paper's) |
     | ``fidelity`` | "fast" | "fast" (reduced-order stomach), "fast-compliant" (its contact calibrated to the FEM wall's tip paths), "fast-coarse" (on one trilinear cell: faster) or "full" (per-vertex FEM) |

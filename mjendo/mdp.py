@@ -47,7 +47,7 @@ def outcome(cfg: TaskConfig, tip, target, origin, axis, force, steps, ok) -> dic
 
 
 def observe(xp, cfg: TaskConfig, delta, tip_vel, cable, prev_axial, contact, force, low, high, scope=None,
-            time_left=None, phase=None, step=None, depth=None, normal=None, base=None):
+            time_left=None, phase=None, step=None, depth=None, normal=None, plan=None, base=None):
     """Observation rows (see task.obs_blocks), clipped to their physical bounds; ``xp`` is numpy or torch.
 
     ``scope`` (with ``cfg.scope_obs``): insertion (m), tip position from the paper frame's origin (m), tip axis;
@@ -56,6 +56,7 @@ def observe(xp, cfg: TaskConfig, delta, tip_vel, cable, prev_axial, contact, for
     ``step`` (with ``cfg.step_obs``): the last step's commanded cable actions and the tip's displacement over it (m);
     ``depth`` (with ``cfg.depth_obs``): the wall's distance along the tip's five rays (m);
     ``normal`` (with ``cfg.normal_obs``): the lumen surface's unit normal at the target, into the lumen;
+    ``plan`` (with ``cfg.plan_obs``): the stomach map's plan for the target (mjendo.targets.plan_vector, mm first);
     ``base`` (with ``cfg.residual``): the baseline controller's action the policy's corrects.
     """
     blocks = [delta * MM_PER_M, tip_vel * MM_PER_M, cable * MM_PER_M, prev_axial[:, None] * 1.0]
@@ -76,6 +77,8 @@ def observe(xp, cfg: TaskConfig, delta, tip_vel, cable, prev_axial, contact, for
         blocks += [depth * MM_PER_M]
     if cfg.normal_obs:
         blocks += [normal * 1.0]
+    if cfg.plan_obs:
+        blocks += [plan * 1.0]
     if cfg.residual:
         blocks += [base * 1.0]
     obs = xp.asarray(xp.concatenate(blocks, 1), dtype=xp.float32)

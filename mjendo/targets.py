@@ -40,6 +40,7 @@ from mjendo.config import (
     ANATOMY_SETS,
     CURRENT_VERSION,
     FIDELITIES,
+    PAPER_ACTION_LIMIT,
     PAPER_EVAL_STEPS,
     PAPER_SUCCESS_MM,
     VERSIONS,
@@ -83,6 +84,8 @@ class TargetTable:
     lists: dict[str, list[int]]
     info: dict
     classes: np.ndarray | None = None  # (n,) the map's class of each point; None for version 0's vertices
+    free_mm: np.ndarray | None = None  # (n,) each point's free-space distance (mm); None for version 0's vertices
+    demos: np.ndarray | None = None  # (n,) the demonstrator (DEMOS) recorded reaching it in SE; -1: free, none
 
     def rows(self, ids) -> np.ndarray:
         """Row of each id in the table."""
@@ -140,7 +143,9 @@ def load(version: int = CURRENT_VERSION, path: Path | None = None) -> TargetTabl
     pts = meta["points"]
     return TargetTable(np.array([p["id"] for p in pts], dtype=np.int64), np.array([p["tri"] for p in pts]),
                        np.array([p["bary"] for p in pts]), meta["lists"], meta["info"],
-                       np.array([p["class"] for p in pts], dtype=object))
+                       np.array([p["class"] for p in pts], dtype=object),
+                       np.array([p["free_mm"] for p in pts], dtype=float),
+                       np.array([p["demos"][0] if p["demos"] else -1 for p in pts], dtype=np.int64))
 
 
 def fingerprint(version: int = CURRENT_VERSION, path: Path | None = None) -> str:
@@ -265,6 +270,24 @@ def demo_action(demo: tuple, k: int) -> np.ndarray:
     if turn and k >= k0:
         bend = 0.4 * _ring(direction + turn * np.pi / 2)
     return np.concatenate([bend, [0.4]])
+
+
+PLAN_SIZE = 7
+
+
+def plan_vector(free_mm: float, demo: int) -> np.ndarray:
+    """What a stomach's map plans for a point (``plan_obs``): its free-space distance (mm), whether it needs the
+    wall, and the demonstrator recorded reaching it in the static stomach (``demo``, an index into DEMOS; -1: none):
+    its bending while inserting (rate / 0.4 times the cosine and sine of its direction about the tube), the direction
+    it bends to at depth after its quarter turn (cosine and sine; 0 without a turn) and the share of a trial before
+    the turn: demo_action's two cable patterns, each ``[c, -c, s, -s]`` times 0.4."""
+    if demo < 0:
+        return np.array([free_mm, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0])
+    direction, rate, turn, k0 = DEMOS[demo]
+    turned = direction + turn * np.pi / 2
+    return np.array([free_mm, 1.0, rate / PAPER_ACTION_LIMIT * np.cos(direction),
+                     rate / PAPER_ACTION_LIMIT * np.sin(direction), abs(turn) * np.cos(turned),
+                     abs(turn) * np.sin(turned), k0 / TRIAL_STEPS if turn else 0.0])
 
 
 def _reach_job(args) -> tuple[int, np.ndarray]:

@@ -27,6 +27,7 @@ from mjendo.config import (
     PAPER_ACTION_LIMIT,
     PAPER_EXIT_X_MM,
     RESIDUAL_GAIN,
+    ConfigError,
     TaskConfig,
     default_target_list,
     substeps,
@@ -53,6 +54,9 @@ STEP_BLOCKS = [("previous_cable_actions", 4, "action units", (-PAPER_ACTION_LIMI
                ("tip_step", 3, "mm", (-1000.0, 1000.0))]
 DEPTH_BLOCKS = [("wall_depth", 5, "mm along the tip axis and 4 tilted rays", (0.0, DEPTH_RANGE_MM))]
 NORMAL_BLOCKS = [("target_normal", 3, "unit vector into the lumen", (-1.0, 1.0))]
+PLAN_BLOCKS = [("target_free_mm", 1, "mm", (0.0, 1000.0)),
+               ("target_plan", targets.PLAN_SIZE - 1, "needs the wall; the map's way to it (targets.plan_vector)",
+                (-1.0, 1.0))]
 RESIDUAL_BLOCKS = [("baseline_action", 5, "action units", (-PAPER_ACTION_LIMIT, PAPER_ACTION_LIMIT))]
 # history_obs: the observation's other blocks as they were at each of the last HISTORY_STEPS steps, newest first;
 # its bounds are theirs (obs_bounds).
@@ -60,7 +64,7 @@ HISTORY_BLOCK = "previous_observations"
 # The task options that add observation blocks, in the order their blocks follow the paper's (history_obs last).
 OPTION_BLOCKS = {"force_obs": FORCE_BLOCKS, "scope_obs": SCOPE_BLOCKS, "time_obs": TIME_BLOCKS,
                  "phase_obs": PHASE_BLOCKS, "step_obs": STEP_BLOCKS, "depth_obs": DEPTH_BLOCKS,
-                 "normal_obs": NORMAL_BLOCKS, "residual": RESIDUAL_BLOCKS}
+                 "normal_obs": NORMAL_BLOCKS, "plan_obs": PLAN_BLOCKS, "residual": RESIDUAL_BLOCKS}
 OBS_OPTIONS = (*OPTION_BLOCKS, "history_obs")
 SETTLE_S = 1.0  # the stomach settles under gravity (and load) before episodes start
 # Start states are snapshots of the stomach in its periodic steady state, this
@@ -168,6 +172,7 @@ class NavigationTask:
         self.origin = self.stomach.entry - from_mm(PAPER_EXIT_X_MM) * self.axis
         self._fe_targets = None if self.sim.has_stomach else free_targets(c.fidelity, c.version, stomach)
         self._normal_stencils = self._target_normal_stencils() if c.normal_obs else None
+        self.target_plans = self._target_plans(table, rows) if c.plan_obs else None
         # residual: the controller whose action the policy's corrects, and its action for the state observed last
         self._base = DLSController(self) if c.residual else None
         self.base_action = np.zeros(ACTION_SIZE)
@@ -323,6 +328,14 @@ class NavigationTask:
             stencils.append((ids, np.split(local.reshape(-1, 3), np.cumsum([len(f) for f in around])[:-1])))
         return stencils
 
+    @staticmethod
+    def _target_plans(table: targets.TargetTable, rows: np.ndarray) -> np.ndarray:
+        """Each listed target's plan from the stomach's map (plan_obs), in list order."""
+        if table.free_mm is None:
+            raise ConfigError("plan_obs needs a stomach's target map (task version 1 or later); version 0's vertex "
+                              "targets have none: use version 1 or drop plan_obs")
+        return np.array([targets.plan_vector(table.free_mm[r], int(table.demos[r])) for r in rows])
+
     def target_normal(self) -> np.ndarray:
         """The lumen surface's unit normal at the target now, into the lumen: its corners' area-weighted vertex
         normals over the lumen's faces (which the wall's boundary orients out of the tissue), blended by the
@@ -457,13 +470,14 @@ class NavigationTask:
         depth = sim.wall_depth(math.radians(DEPTH_TILT_DEG), from_mm(DEPTH_RANGE_MM))[None] \
             if self.cfg.depth_obs else None
         normal = self.target_normal()[None] if self.cfg.normal_obs else None
+        plan = self.target_plans[self._row][None] if self.cfg.plan_obs else None
         if self._base is not None:
             self.base_action = self._base.act(None, self)
         base = self.base_action[None] if self._base is not None else None
         obs = mdp.observe(np, self.cfg, delta[None], sim.tip_vel()[None], sim.cable_lengths()[None],
                           np.array([self.prev_axial]), np.array([float(self.contact.active)]),
                           force[None], self._now_low, self._now_high, scope, left, phase, step, depth, normal,
-                          base)[0]
+                          plan, base)[0]
         if not self.cfg.history_obs:
             return obs
         self._last_obs = obs

@@ -310,9 +310,8 @@ def _start_from(cfg: TrainConfig, venv):
             raise ConfigError(f"init_from {src} observes {have}, this run {want}: a fine-tune can only add the "
                               "contact force (force_obs), the scope's state (scope_obs), the time left (time_obs), "
                               "the breathing phase (phase_obs), the last step (step_obs), the wall's depth "
-                              "(depth_obs), the target's surface normal (normal_obs) or the last observations "
-                              "(history_obs) after the source's inputs, "
-                              "not drop or reorder them")
+                              "(depth_obs), the target's surface normal (normal_obs), the map's plan (plan_obs) or "
+                              "the last observations (history_obs) after the source's inputs, not drop or reorder them")
         return _widened_start(cfg, venv, src)
     if cfg.normalize:
         venv = VecNormalize.load(str(src / NORM_FILE), venv)  # keeps adapting to the new stomach

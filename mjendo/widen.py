@@ -1,6 +1,6 @@
 """Start a policy that observes more (the contact force ``force_obs``, the scope's state ``scope_obs``, the time
 left ``time_obs``, the breathing phase ``phase_obs``, the last step ``step_obs``, the wall's depth ``depth_obs``, the
-target's surface normal ``normal_obs``) from a trained one that does not.
+target's surface normal ``normal_obs``, the map's plan ``plan_obs``) from a trained one that does not.
 
 The added inputs come last in the observation (task.OBS_OPTIONS' order), so the source's first-layer weights
 are kept and the new inputs' weights start at zero: the widened policy and value function compute exactly

@@ -334,6 +334,38 @@ def test_normal_observation_is_the_lumen_surface_facing_the_scope_at_the_target(
     np.testing.assert_allclose(free.step(np.full(5, 0.4))[0][15:], o0[15:], atol=1e-6)  # FE: the static wall's
 
 
+def test_plan_observation_carries_the_maps_way_to_each_target():
+    # The observed plan is the map's: free targets say so and need no way; a contact-aided target's way, rebuilt from
+    # the seven numbers alone and replayed open loop from the static start, brings the tip within 3 mm of it, where
+    # free space never comes within 10 mm. The paper's observation is unchanged and the plan holds over the episode.
+    env = EndoscopeEnv("SE", plan_obs=True)
+    task, points = env.task, {p["id"]: p for p in targets.read_map(targets.stomach_map())["points"]}
+    assert env.observation_space.shape == (22,)
+    aided = [int(i) for i in task.targets if points[int(i)]["class"] == "contact_aided"]
+    for index in task.targets:
+        o, _ = env.reset(seed=1, options={"target_index": int(index)})
+        assert o[15] == pytest.approx(points[int(index)]["free_mm"], abs=1e-3)
+        assert o[16] == (int(index) in aided)
+        if int(index) not in aided:
+            np.testing.assert_array_equal(o[17:], 0.0)
+    for index in aided[:3]:
+        o, _ = env.reset(seed=1, options={"target_index": index})
+        plan = o[15:].copy()
+        assert plan[0] >= 10.0
+        closest = np.inf
+        for k in range(80):
+            turn = plan[4:6] if np.any(plan[4:6]) and k >= round(plan[6] * 80) else None
+            bend = 0.4 * (turn if turn is not None else plan[2:4]) if k < 12 or turn is not None else np.zeros(2)
+            o, _, done, _, _ = env.step(np.array([bend[0], -bend[0], bend[1], -bend[1], 0.4]))
+            np.testing.assert_array_equal(o[15:], plan)
+            closest = min(closest, float(np.linalg.norm(o[:3])))
+            if done:
+                break
+        assert closest < 3.0, (index, closest)
+    with pytest.raises(ConfigError, match="plan_obs needs"):
+        EndoscopeEnv("SE", plan_obs=True, version=0)
+
+
 def test_residual_actions_correct_the_baseline_controllers():
     # A policy that adds nothing drives the scope exactly as the DLS baseline does alone; any other action is
     # added, doubled, to the baseline's for the state it observed, and the sum clipped to the action box.

@@ -448,7 +448,7 @@ def test_a_fine_tune_adds_inputs_only_after_the_sources(monkeypatch):
     cfg.task = {**cfg.task, "time_obs": True}  # wants the scope's state and the time left
     monkeypatch.setattr(artifacts, "obs_options",
                         lambda _d: {"force_obs": True, "scope_obs": False, "time_obs": True, "phase_obs": False,
-                                    "step_obs": False, "depth_obs": False, "normal_obs": False,
+                                    "step_obs": False, "depth_obs": False, "normal_obs": False, "plan_obs": False,
                                     "residual": False, "history_obs": False})
     with pytest.raises(ConfigError, match="after the source's inputs, not drop or reorder them"):
         train_module._start_from(cfg, None)  # the scope's block would land before the source's time
@@ -458,7 +458,7 @@ def test_a_fine_tune_adds_inputs_only_after_the_sources(monkeypatch):
     cfg.task = {**cfg.task, "scope_obs": False, "time_obs": True, "phase_obs": True}
     monkeypatch.setattr(artifacts, "obs_options",
                         lambda _d: {"force_obs": True, "scope_obs": False, "time_obs": False, "phase_obs": True,
-                                    "step_obs": False, "depth_obs": False, "normal_obs": False,
+                                    "step_obs": False, "depth_obs": False, "normal_obs": False, "plan_obs": False,
                                     "residual": False, "history_obs": False})
     with pytest.raises(ConfigError, match="breathing phase .* not drop or reorder"):
         train_module._start_from(cfg, None)  # the time left would land before the source's phase

@@ -650,6 +650,9 @@ class TaskConfig:
     env: str = "DE"
     fidelity: str = "fast"
     force_obs: bool = True  # contact indicator + resultant force (policies C, E)
+    # The force sensor reads nothing (contact 0, force 0) while a force-aware policy keeps its inputs: the
+    # ablation that says how much of what such a policy does it draws from them (evaluation --force-off).
+    force_off: bool = False
     # Insertion depth, tip position and tip axis: more of the scope's state than the paper's policies
     # see (a real robot knows its insertion; the tip pose comes from the tracker that ee_to_target needs).
     scope_obs: bool = False
@@ -787,8 +790,8 @@ def task_config(**kw) -> TaskConfig:
 
 ACTION_SCALES = ("control_period_s", "cable_mm_per_unit", "insertion_mm_per_unit")
 # TaskConfig's on/off fields (numpy's bools accepted, stored as Python's).
-_SWITCHES = ("force_obs", "scope_obs", "time_obs", "phase_obs", "step_obs", "depth_obs", "normal_obs", "plan_obs",
-             "residual", "history_obs", "randomize_phase")
+_SWITCHES = ("force_obs", "force_off", "scope_obs", "time_obs", "phase_obs", "step_obs", "depth_obs", "normal_obs",
+             "plan_obs", "residual", "history_obs", "randomize_phase")
 
 
 def _anatomy(cfg: TaskConfig) -> None:

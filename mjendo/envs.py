@@ -86,6 +86,7 @@ class EndoscopeEnv(gym.Env):
     |---|---|---|
     | ``env`` | set by the id | FE, SE, DE, UE1, UE2 |
     | ``force_obs`` | True | include contact indicator and force (policies C, E) |
+    | ``force_off`` | False | the force sensor reads nothing: contact and force observed as 0, the physics unchanged (an ablation: ``python -m mjendo.evaluation --force-off``) |
     | ``scope_obs`` | False | include insertion depth and tip pose (not the paper's; train/policies.yaml variants) |
     | ``time_obs`` | False | include the share of the trial left; reaching ``max_steps`` then terminates instead of truncating (not the paper's) |
     | ``phase_obs`` | False | include the breathing cycle's phase, as a respiratory belt or the ventilator gives it (not the paper's) |

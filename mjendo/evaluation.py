@@ -64,6 +64,7 @@ class Conditions:
     randomization: bool | dict | None = None  # tissue, load, friction and noise drawn per trial from its seed
     timestep: float | None = None  # physics step instead of the stomach's own (TaskConfig.timestep_s)
     contact_time_constant: float | None = None  # TaskConfig.contact_time_constant_s
+    force_off: bool = False  # force-aware policies read no contact and no force (TaskConfig.force_off)
 
     def task(self, controller: str) -> dict:
         """The TaskConfig fields of a controller's trials."""
@@ -71,7 +72,7 @@ class Conditions:
 
         return {"max_steps": self.steps, "fidelity": self.fidelity, "version": version_of(controller, self.version),
                 "anatomy": self.anatomy, "randomization": self.randomization, "timestep_s": self.timestep,
-                "contact_time_constant_s": self.contact_time_constant}
+                "contact_time_constant_s": self.contact_time_constant, "force_off": self.force_off}
 
     def check(self, controllers) -> None:
         """A bad value, or a stomach without a map, stops here, not as the same error in every trial."""
@@ -97,7 +98,9 @@ class Conditions:
                 + ("" if self.timestep is None else " (not the stomach's own)")
                 + ("" if self.contact_time_constant is None
                    else f", contact and anchor time constant {1000 * self.contact_time_constant:g} ms (not the "
-                   "scene's)") + ".  ")
+                   "scene's)")
+                + (", **force sensor off**: force-aware policies read contact 0 and force 0 (`--force-off`)"
+                   if self.force_off else "") + ".  ")
 
 
 def default_out(fidelity: str) -> Path:
@@ -478,8 +481,8 @@ def evaluate(trials: int = 200, controllers=CONTROLLERS, workers: int = 2, out: 
     """Every cell's trials; policies act in the task version they trained in, the baseline in ``version``.
 
     ``conditions``: the fields of Conditions (fidelity, version, anatomy, steps, randomization, timestep,
-    contact_time_constant). ``steps`` longer than the paper's 80 measure what the trial's time costs: success
-    by step 80 in them is the 80-step trial's, the trajectories being the same.
+    contact_time_constant, force_off). ``steps`` longer than the paper's 80 measure what the trial's time costs:
+    success by step 80 in them is the 80-step trial's, the trajectories being the same.
     """
     from tqdm import tqdm
 
@@ -574,13 +577,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--contact-time-constant", type=float, help="time constant in s of the scope-wall contacts and "
                     "the fast stomachs' anchors instead of the scene's (0.02, 0.01; MuJoCo raises it to two physics "
                     "steps): how much a policy's success depends on the contact's softness (docs/physics.md)")
+    ap.add_argument("--force-off", action="store_true", help="the force sensor reads nothing (contact 0, force 0) "
+                    "while C and E keep their inputs: how much of what they do they draw from the force")
     a = ap.parse_args(argv)
     command = "python -m mjendo.evaluation " + " ".join(argv if argv is not None else sys.argv[1:])
     return cli.run(lambda: evaluate(a.trials, tuple(a.policies.split(",")), a.workers, a.out, a.seed, command=command,
                                     fidelity=a.fidelity, envs=tuple(a.envs.split(",")) if a.envs else None,
                                     overwrite=a.overwrite, version=a.version, anatomy=a.anatomy,
                                     steps=a.trial_steps, randomization=a.randomization, timestep=a.timestep,
-                                    contact_time_constant=a.contact_time_constant),
+                                    contact_time_constant=a.contact_time_constant, force_off=a.force_off),
                    ConfigError, PolicyError)
 
 

@@ -61,7 +61,8 @@ def observe(xp, cfg: TaskConfig, delta, tip_vel, cable, prev_axial, contact, for
     """
     blocks = [delta * MM_PER_M, tip_vel * MM_PER_M, cable * MM_PER_M, prev_axial[:, None] * 1.0]
     if cfg.force_obs:
-        blocks += [contact[:, None] * 1.0, force / cfg.force_ref_n]
+        reads = 0.0 if cfg.force_off else 1.0  # force_off: the sensor's ablation
+        blocks += [contact[:, None] * reads, force * (reads / cfg.force_ref_n)]
     if cfg.scope_obs:
         insertion, tip, axis = scope
         blocks += [insertion[:, None] * MM_PER_M, tip * MM_PER_M, axis * 1.0]

@@ -334,6 +334,24 @@ def test_normal_observation_is_the_lumen_surface_facing_the_scope_at_the_target(
     np.testing.assert_allclose(free.step(np.full(5, 0.4))[0][15:], o0[15:], atol=1e-6)  # FE: the static wall's
 
 
+def test_with_the_force_sensor_off_the_policy_reads_no_contact_while_the_physics_is_unchanged():
+    # The ablation of the force inputs: the same pushes into the wall give the same motion and the same paper
+    # observation, and where the live sensor reads contact and a force, the one switched off reads 0.
+    live, off = EndoscopeEnv("DE"), EndoscopeEnv("DE", force_off=True)
+    assert off.observation_space.shape == live.observation_space.shape == (15,)
+    live.reset(seed=2, options={"target_index": int(live.task.targets[0])})
+    off.reset(seed=2, options={"target_index": int(live.task.targets[0])})
+    pushes = 0
+    for _ in range(60):
+        ol, _, _, _, il = live.step(np.array([0.4, 0.0, 0.0, 0.0, 0.4]))
+        oo, _, _, _, io = off.step(np.array([0.4, 0.0, 0.0, 0.0, 0.4]))
+        np.testing.assert_array_equal(ol[:11], oo[:11])
+        np.testing.assert_array_equal(il["force_N"], io["force_N"])  # the physics and the report see the force
+        np.testing.assert_array_equal(oo[11:], 0.0)
+        pushes += ol[11] == 1.0 and np.linalg.norm(ol[12:]) > 0.01
+    assert pushes > 5
+
+
 def test_plan_observation_carries_the_maps_way_to_each_target():
     # The observed plan is the map's: free targets say so and need no way; a contact-aided target's way, rebuilt from
     # the seven numbers alone and replayed open loop from the static start, brings the tip within 3 mm of it, where

@@ -84,7 +84,7 @@ class TargetTable:
     lists: dict[str, list[int]]
     info: dict
     classes: np.ndarray | None = None  # (n,) the map's class of each point; None for version 0's vertices
-    free_mm: np.ndarray | None = None  # (n,) each point's free-space distance (mm); None for version 0's vertices
+    free_mm: np.ndarray | None = None  # (n,) each point's free-space distance (mm); None: not measured (version 0)
     demos: np.ndarray | None = None  # (n,) the demonstrator (DEMOS) recorded reaching it in SE; -1: free, none
 
     def rows(self, ids) -> np.ndarray:
@@ -141,11 +141,12 @@ def load(version: int = CURRENT_VERSION, path: Path | None = None) -> TargetTabl
         load_error(path)
     meta = read_map(path)
     pts = meta["points"]
+    measured = all("free_mm" in p for p in pts)  # a map written by hand may hold the classes alone
     return TargetTable(np.array([p["id"] for p in pts], dtype=np.int64), np.array([p["tri"] for p in pts]),
                        np.array([p["bary"] for p in pts]), meta["lists"], meta["info"],
                        np.array([p["class"] for p in pts], dtype=object),
-                       np.array([p["free_mm"] for p in pts], dtype=float),
-                       np.array([p["demos"][0] if p["demos"] else -1 for p in pts], dtype=np.int64))
+                       np.array([p["free_mm"] for p in pts], dtype=float) if measured else None,
+                       np.array([p["demos"][0] if p.get("demos") else -1 for p in pts], dtype=np.int64))
 
 
 def fingerprint(version: int = CURRENT_VERSION, path: Path | None = None) -> str:

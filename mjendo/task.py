@@ -332,8 +332,9 @@ class NavigationTask:
     def _target_plans(table: targets.TargetTable, rows: np.ndarray) -> np.ndarray:
         """Each listed target's plan from the stomach's map (plan_obs), in list order."""
         if table.free_mm is None:
-            raise ConfigError("plan_obs needs a stomach's target map (task version 1 or later); version 0's vertex "
-                              "targets have none: use version 1 or drop plan_obs")
+            raise ConfigError("plan_obs needs a target map with each point's free-space distance, as `python -m "
+                              "mjendo.targets map` measures it (task version 1 or later; version 0's vertex targets "
+                              "have none): measure the stomach's map or drop plan_obs")
         return np.array([targets.plan_vector(table.free_mm[r], int(table.demos[r])) for r in rows])
 
     def target_normal(self) -> np.ndarray:

@@ -341,10 +341,12 @@ def _widened_start(cfg: TrainConfig, venv, src: Path):
     source = PPO.load(str(src / MODEL_FILE), device=torch_device(cfg))
     model = build_ppo(cfg, venv)
     n = source.observation_space.shape[0]
-    model.policy.load_state_dict(widen_state(source.policy.state_dict(), model.policy.state_dict(), n))
+    model.policy.load_state_dict(widen_state(source.policy.state_dict(), model.policy.state_dict(), n,
+                                             cfg.widen_scale, cfg.seed))
     if cfg.normalize:
         model.set_env(widened_normalizer(src / NORM_FILE, venv, cfg.ppo.gamma, model))
-    print(f"widened {src}: {n} inputs -> {model.observation_space.shape[0]} (the new ones at zero weight)")
+    weight = f"at {cfg.widen_scale:g} x the old ones' spread" if cfg.widen_scale else "at zero weight"
+    print(f"widened {src}: {n} inputs -> {model.observation_space.shape[0]} (the new ones {weight})")
     return model
 
 

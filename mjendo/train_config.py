@@ -151,6 +151,10 @@ class TrainConfig:
     uniformly from 0 (0: none; mjendo.demonstrations); the maximum falls linearly to 0 at guide_decay_steps"""
     guide_decay_steps: int = 0
     """steps after which training is unguided (0: the whole budget)"""
+    widen_scale: float = 0.0
+    """an init_from that observes less: the new inputs' first-layer weights drawn at this share of the spread of the
+    old inputs' (normal, per layer); 0 keeps the source's function exactly (mjendo.widen), above 0 starts the new
+    inputs at a weight the policy can lean on"""
     full_envs: int = 0
     """of the n_envs training environments, how many run in the full FEM stomach (the rest in `fidelity`, at the
     same task and physics step): samples from the model of record at a fraction of its cost; periodic
@@ -200,6 +204,9 @@ class TrainConfig:
         if self.guide_steps and self.task_config().version < 1:
             raise ConfigError("guided starts replay the reachability map's demonstrators, which task version 0 "
                               "(vertex targets) has none of: use version 1 or guide_steps 0")
+        if not (isinstance(self.widen_scale, int | float) and 0 <= self.widen_scale <= 10):
+            raise ConfigError(f"widen_scale must be a number from 0 (the new inputs at zero weight) to 10, not "
+                              f"{self.widen_scale!r}")
         if not 0 <= self.full_envs <= self.n_envs or (self.full_envs and self.backend == "warp"):
             raise ConfigError(f"full_envs must be between 0 and n_envs ({self.n_envs}) and needs the cpu backend "
                               f"(got {self.full_envs}, backend {self.backend})")

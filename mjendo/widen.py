@@ -22,9 +22,13 @@ from mjendo.config import ConfigError
 STAT_STEPS = 2048
 
 
-def widen_state(source: dict, target: dict, n_source: int) -> dict:
-    """``target``'s state dict with ``source``'s tensors; first-layer weights padded with zero columns."""
+def widen_state(source: dict, target: dict, n_source: int, scale: float = 0.0, seed: int = 0) -> dict:
+    """``target``'s state dict with ``source``'s tensors; first-layer weights padded with new columns: zero, or
+    normal at ``scale`` times the standard deviation of the layer's old weights (TrainConfig.widen_scale)."""
+    import torch
+
     out = {}
+    gen = torch.Generator().manual_seed(seed)
     for name, new in target.items():
         old = source[name]
         if old.shape == new.shape:
@@ -32,6 +36,9 @@ def widen_state(source: dict, target: dict, n_source: int) -> dict:
         elif old.dim() == 2 and old.shape[0] == new.shape[0] and old.shape[1] == n_source < new.shape[1]:
             out[name] = new.new_zeros(new.shape)
             out[name][:, :n_source] = old
+            if scale:
+                noise = torch.randn(new.shape[0], new.shape[1] - n_source, generator=gen, dtype=new.dtype)
+                out[name][:, n_source:] = noise * (scale * float(old.std()))
         else:
             raise ConfigError(f"cannot widen parameter {name}: source shape {tuple(old.shape)}, "
                               f"new shape {tuple(new.shape)} (the two policies' networks differ, not only "

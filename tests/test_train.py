@@ -441,6 +441,26 @@ def test_a_fine_tune_that_adds_inputs_starts_acting_and_valuing_as_its_source(mo
         train_module._start_from(d, DummyVecEnv([train_module.make_env(d, 0)]))
 
 
+def test_widen_scale_starts_the_new_inputs_at_the_old_ones_spread():
+    # widen_scale 0 keeps the source (the test above); above 0 the new columns of each first layer are drawn at that
+    # share of the layer's old spread, the old weights untouched, reproducibly from the seed, and the new policy acts
+    # otherwise than its source on an observation whose new inputs are not zero.
+    import torch
+
+    from mjendo.widen import widen_state
+
+    source = {"w": torch.randn(64, 11, generator=torch.Generator().manual_seed(1)), "b": torch.ones(64)}
+    target = {"w": torch.zeros(64, 15), "b": torch.zeros(64)}
+    zero, scaled = widen_state(source, target, 11), widen_state(source, target, 11, scale=0.5, seed=3)
+    assert torch.equal(zero["w"][:, 11:], torch.zeros(64, 4)) and torch.equal(scaled["w"][:, :11], source["w"])
+    assert float(scaled["w"][:, 11:].std()) == pytest.approx(0.5 * float(source["w"].std()), rel=0.2)
+    assert torch.equal(scaled["w"], widen_state(source, target, 11, scale=0.5, seed=3)["w"])
+    x = torch.ones(15)
+    assert not torch.allclose(scaled["w"] @ x, zero["w"] @ x)
+    with pytest.raises(ConfigError, match="widen_scale must be a number from 0"):
+        load_config("E", TRAINING_CONFIG, widen_scale=-1.0)
+
+
 def test_a_fine_tune_adds_inputs_only_after_the_sources(monkeypatch):
     from mjendo import train as train_module
 

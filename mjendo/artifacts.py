@@ -409,6 +409,21 @@ def _compare(a: Path, b: Path) -> int:
     return 0
 
 
+def input_weights(directory: str) -> list[tuple[str, float, float]]:
+    """Per observation block: the smallest and largest norm of its inputs' columns in the actor's first layer. An
+    input trained from zero weight (mjendo.widen) that kept little of it shows here; `--force-off` measures the
+    effect."""
+    from mjendo.task import obs_blocks
+
+    pol = load(resolve(directory))
+    weight = pol.model.policy.mlp_extractor.policy_net[0].weight.detach().numpy()
+    norms, rows, start = np.linalg.norm(weight, axis=0), [], 0
+    for name, size, *_ in obs_blocks(**obs_options(pol.directory)):
+        rows.append((name, float(norms[start:start + size].min()), float(norms[start:start + size].max())))
+        start += size
+    return rows
+
+
 def main(argv: list[str] | None = None) -> int:
     """``python -m mjendo.artifacts ship RUN POLICY`` (``make ship``): copy a finished run's policy;
     ``compare RUN FOLDER``: whether a retrained run reproduced a published policy (exit status 1 if not)."""
@@ -427,7 +442,12 @@ def main(argv: list[str] | None = None) -> int:
                        "published seed)")
     c.add_argument("run", type=Path, help="a policy folder, e.g. runs/E/paired-fast-coarse-seed4-fast-coarse")
     c.add_argument("folder", type=Path, help="another, e.g. models/policies/E/seeds/seed4")
+    w = sub.add_parser("inputs", help="how much weight the actor's first layer gives each observation block")
+    w.add_argument("folder", help="a policy folder or name, e.g. E or models/policies/variants/E-paper")
     a = ap.parse_args(argv)
+    if a.cmd == "inputs":
+        return cli.run(lambda: print("\n".join(f"{name:24s} {lo:6.3f} - {hi:6.3f}"
+                                               for name, lo, hi in input_weights(a.folder))), PolicyError, ConfigError)
     if a.cmd == "compare":
         status = []
         code = cli.run(lambda: status.append(_compare(a.run, a.folder)), PolicyError)

@@ -278,3 +278,15 @@ def test_compare_tells_a_reproduced_policy_from_a_changed_one(tmp_path):
     assert not parts["actor weights"] and not parts["normalisation"] and parts["value function"] and parts["task"]
     assert artifacts.main(["compare", str(source), str(copy)]) == 1
     assert artifacts.main(["compare", str(source), str(tmp_path / "missing")]) == 2  # the one-line error
+
+
+def test_input_weights_name_each_block_and_show_the_widened_force_inputs():
+    # The shipped E is D widened to the force inputs at zero weight: its force columns stay small next to the paper
+    # observation's; C, trained with the force from its first step, weights them as the rest.
+    shipped = {name: (lo, hi) for name, lo, hi in artifacts.input_weights("E")}
+    assert list(shipped) == ["ee_to_target", "ee_velocity", "cable_lengths", "previous_axial_action", "contact",
+                             "force"]
+    assert shipped["force"][1] < 0.5 < 1.0 < shipped["ee_to_target"][0]
+    c = {name: (lo, hi) for name, lo, hi in artifacts.input_weights("C")}
+    assert c["force"][0] > 1.0
+    assert artifacts.main(["inputs", "nosuch"]) == 2

@@ -151,6 +151,8 @@ def _callbacks(cfg: TrainConfig, run: Path, meta: dict, start_steps: int, progre
 
         def _on_rollout_start(self) -> None:
             self.checkpoint_if_due()
+            if cfg.critic_warmup_steps:  # the update after this rollout trains the actor only once warmed up
+                set_actor_trainable(self.model.policy, self.num_timesteps >= cfg.critic_warmup_steps)
             if self.sampler.active:  # how often each target is drawn (TrainConfig.target_sampling, curriculum)
                 self.training_env.env_method("set_target_weights", self.sampler.weights(self.num_timesteps))
             if cfg.guide_steps:  # guided starts (mjendo.demonstrations): the most demonstrator steps, falling to 0
@@ -193,6 +195,17 @@ def _callbacks(cfg: TrainConfig, run: Path, meta: dict, start_steps: int, progre
             self.bar.close()
 
     return Training()
+
+
+ACTOR_PARAMS = ("mlp_extractor.policy_net.", "action_net.", "log_std")  # SB3's ActorCriticPolicy: what acts
+
+
+def set_actor_trainable(policy, trainable: bool) -> None:
+    """Freeze or release the actor's parameters (TrainConfig.critic_warmup_steps): frozen ones get no gradient,
+    so PPO's update moves the value function alone and Adam leaves the actor and its moments as they are."""
+    for name, param in policy.named_parameters():
+        if name.startswith(ACTOR_PARAMS):
+            param.requires_grad_(trainable)
 
 
 def guide_limit(cfg: TrainConfig, timesteps: int) -> int:
@@ -429,6 +442,8 @@ def train(policy: str, timesteps: int | None = None, seed: int | None = None, n_
             model = build_ppo(cfg, venv, tensorboard_log=str(run / "tb"))
         (run / "config.yaml").write_text(yaml.safe_dump(cfg.to_dict(), sort_keys=False))
 
+    if cfg.freeze_normalization and hasattr(model.get_env(), "obs_rms"):
+        model.get_env().training = False  # the statistics the run started with, on resume too
     start, total = model.num_timesteps, cfg.total_timesteps
     final_meta = artifacts.read_meta(run)
     if start >= total and (run / MODEL_FILE).exists() and final_meta.get("timesteps"):

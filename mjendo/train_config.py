@@ -162,6 +162,12 @@ class TrainConfig:
     critic_only: list[str] = field(default_factory=list)
     """observation options (scope_obs, time_obs, phase_obs; on in the task block too) whose blocks only the value
     function sees: an asymmetric actor-critic (mjendo.asymmetric); the policy acts on the rest"""
+    critic_warmup_steps: int = 0
+    """steps at the start of the run in which only the value function learns (the actor frozen): a fine-tune in
+    another stomach otherwise takes its first actor steps on advantages from a critic fitted to the old one"""
+    freeze_normalization: bool = False
+    """keep the observation and reward statistics the run starts with (its init_from's): in another stomach
+    adapting them moves every input the policy reads while the policy itself has not yet learnt anything there"""
 
     @property
     def rollout_size(self) -> int:
@@ -218,6 +224,9 @@ class TrainConfig:
             if self.backend == "warp":
                 raise ConfigError("critic_only needs the cpu backend (its inputs are not in the batched observation)")
             actor_inputs(self.task_config(), self.critic_only)
+        if self.critic_warmup_steps < 0 or (self.critic_warmup_steps and self.backend == "warp"):
+            raise ConfigError(f"critic_warmup_steps must be >= 0 and needs the cpu backend (got "
+                              f"{self.critic_warmup_steps}, backend {self.backend})")
         for name in ("checkpoint_every", "eval_every", "eval_episodes"):
             if getattr(self, name) < 1:
                 raise ConfigError(f"{name} must be >= 1")

@@ -461,6 +461,41 @@ def test_widen_scale_starts_the_new_inputs_at_the_old_ones_spread():
         load_config("E", TRAINING_CONFIG, widen_scale=-1.0)
 
 
+def test_a_warmed_up_fine_tune_moves_the_critic_first_and_keeps_the_statistics(short_run, tmp_path):
+    # critic_warmup_steps: the updates of the first steps train the value function alone; freeze_normalization: the
+    # run keeps its start's observation statistics. After the warm-up the actor learns again.
+    import pickle
+
+    import torch
+    import yaml
+    from stable_baselines3 import PPO
+
+    src, _ = short_run
+    raw = yaml.safe_load((src.parent.parent / "policies.yaml").read_text())
+    raw["defaults"].update(critic_warmup_steps=128, freeze_normalization=True)
+    cfg_path = tmp_path / "policies.yaml"
+    cfg_path.write_text(yaml.safe_dump(raw))
+
+    def tune(steps, name):
+        run = train("D", timesteps=steps, out=tmp_path, run_name=name, config_file=cfg_path, fidelity="fast",
+                    init_from=src, learning_rate=1e-3, progress=False)
+        return PPO.load(str(run / "model.zip"), device="cpu").policy.state_dict(), run
+
+    before = PPO.load(str(src / "model.zip"), device="cpu").policy.state_dict()
+    # Two updates of 128 samples: the first in the warm-up, the last at a learning rate of 0 (linear schedule).
+    warm, run = tune(256, "warm")
+    actor = [k for k in before if k.startswith(("mlp_extractor.policy_net.", "action_net.", "log_std"))]
+    assert actor and all(torch.equal(before[k], warm[k]) for k in actor)
+    assert any(not torch.equal(before[k], warm[k]) for k in before if k not in actor)
+    with open(src / "vecnormalize.pkl", "rb") as f, open(run / "vecnormalize.pkl", "rb") as g:
+        a, b = pickle.load(f).obs_rms, pickle.load(g).obs_rms
+    assert np.array_equal(a.mean, b.mean) and np.array_equal(a.var, b.var) and a.count == b.count
+    released, _ = tune(384, "released")  # the second update is past the warm-up
+    assert any(not torch.equal(before[k], released[k]) for k in actor)
+    with pytest.raises(ConfigError, match="critic_warmup_steps must be >= 0"):
+        load_config("E", TRAINING_CONFIG, critic_warmup_steps=-1)
+
+
 def test_a_fine_tune_adds_inputs_only_after_the_sources(monkeypatch):
     from mjendo import train as train_module
 

@@ -224,9 +224,8 @@ class TrainConfig:
             if self.backend == "warp":
                 raise ConfigError("critic_only needs the cpu backend (its inputs are not in the batched observation)")
             actor_inputs(self.task_config(), self.critic_only)
-        if self.critic_warmup_steps < 0 or (self.critic_warmup_steps and self.backend == "warp"):
-            raise ConfigError(f"critic_warmup_steps must be >= 0 and needs the cpu backend (got "
-                              f"{self.critic_warmup_steps}, backend {self.backend})")
+        if self.critic_warmup_steps < 0:
+            raise ConfigError(f"critic_warmup_steps must be >= 0 (got {self.critic_warmup_steps})")
         for name in ("checkpoint_every", "eval_every", "eval_episodes"):
             if getattr(self, name) < 1:
                 raise ConfigError(f"{name} must be >= 1")

@@ -197,14 +197,11 @@ def _callbacks(cfg: TrainConfig, run: Path, meta: dict, start_steps: int, progre
     return Training()
 
 
-ACTOR_PARAMS = ("mlp_extractor.policy_net.", "action_net.", "log_std")  # SB3's ActorCriticPolicy: what acts
-
-
 def set_actor_trainable(policy, trainable: bool) -> None:
-    """Freeze or release the actor's parameters (TrainConfig.critic_warmup_steps): frozen ones get no gradient,
-    so PPO's update moves the value function alone and Adam leaves the actor and its moments as they are."""
+    """Freeze or release every parameter but the value function's (TrainConfig.critic_warmup_steps): frozen ones
+    get no gradient, so PPO's update moves the value function alone and Adam leaves the actor as it is."""
     for name, param in policy.named_parameters():
-        if name.startswith(ACTOR_PARAMS):
+        if not name.startswith(artifacts.VALUE_PARAMS):
             param.requires_grad_(trainable)
 
 

@@ -112,7 +112,7 @@ class EndoscopeEnv(gym.Env):
     | ``**task`` | | any other TaskConfig field: ``cable_mm_per_unit``, ``insertion_mm_per_unit``, ``control_period_s``, ``force_ref_n``, ``timestep_s`` (the physics step), ``contact_time_constant_s`` (the contacts' and anchors' softness) |
 
     ``info`` each step: distance_mm, is_success, contact, force_N (3-vector),
-    peak_force_N, target_index, exited, step and the reward terms.
+    peak_force_N, target_index, anatomy (the stomach), exited, step and the reward terms.
     ``reset``'s info: target_index, distance_mm, anatomy and, with ``randomization``, the episode's draw.
 
     ## Version history
@@ -156,6 +156,8 @@ class EndoscopeEnv(gym.Env):
         self._members = anatomy.members(cfg.anatomy)
         self._cfg = cfg
         self._tasks: dict[int, NavigationTask] = {}
+        self._member_weights: list[np.ndarray] | None = None  # set_target_weights across a set
+        self._member_p: np.ndarray | None = None
         self.task = self._task(0)
         self.render_mode = render_mode
         self.camera = camera
@@ -180,10 +182,25 @@ class EndoscopeEnv(gym.Env):
         return list(self._members)
 
     def set_target_weights(self, weights) -> None:
-        """Training's hook (``VecEnv.env_method``) for how often each target is drawn: see mjendo.sampling."""
-        if len(self._members) > 1 and weights is not None:
-            raise ConfigError("target weights are per stomach's list: adaptive sampling needs one anatomy")
-        self.task.set_target_weights(weights)
+        """Training's hook (``VecEnv.env_method``) for how often each target is drawn: see mjendo.sampling.
+
+        Across a set of stomachs, one array per stomach (``anatomies`` order): a stomach is drawn in proportion
+        to its weights' sum, then a target of its list by them; None restores the uniform draws.
+        """
+        if len(self._members) == 1:
+            self.task.set_target_weights(weights)
+            return
+        if weights is None:
+            self._member_weights = None
+            for task in self._tasks.values():
+                task.set_target_weights(None)
+            return
+        w = [np.asarray(x, float) for x in weights]
+        sums = np.array([x.sum() for x in w])
+        if len(w) != len(self._members) or not np.all(np.isfinite(sums)) or sums.min() < 0 or sums.sum() <= 0:
+            raise ValueError(f"target weights across a set: one array per stomach ({len(self._members)}), finite, "
+                             "not all 0")
+        self._member_weights, self._member_p = w, sums / sums.sum()
 
     def _check_options(self, options: dict) -> None:
         """A misspelt or misplaced reset option is refused, not ignored: the episode would silently be another."""
@@ -203,9 +220,15 @@ class EndoscopeEnv(gym.Env):
         options = options or {}
         self._check_options(options)
         if len(self._members) > 1:
-            k = int(options["anatomy_index"]) if "anatomy_index" in options \
-                else int(self.np_random.integers(len(self._members)))
+            if "anatomy_index" in options:
+                k = int(options["anatomy_index"])
+            elif self._member_weights is None:
+                k = int(self.np_random.integers(len(self._members)))
+            else:
+                k = int(self.np_random.choice(len(self._members), p=self._member_p))
             task = self._task(k)
+            if self._member_weights is not None:
+                task.set_target_weights(self._member_weights[k])
             if task is not self.task and self._renderer is not None:
                 self.close()  # the renderer belongs to the previous stomach's model
             self.task = task
@@ -220,7 +243,7 @@ class EndoscopeEnv(gym.Env):
 
     def step(self, action):
         r = self.task.step(action)
-        return r.obs, r.reward, r.terminated, r.truncated, r.info
+        return r.obs, r.reward, r.terminated, r.truncated, {**r.info, "anatomy": self.task.cfg.anatomy}
 
     # -------------------------------------------------------------- render
     def render(self):

@@ -109,12 +109,18 @@ def target_sampler(cfg: TrainConfig, run: Path | None = None) -> TargetSampler:
     """The run's target sampler (TrainConfig.target_sampling), with the solve rates of its latest checkpoint."""
     task = cfg.task_config()
     name = cfg.train_targets or task.target_list or default_target_list(task.env, task.version)
-    if len(anatomy.members(task.anatomy)) > 1:  # each stomach's task draws its own list (and pool weights)
-        return TargetSampler([], [], cfg.target_sampling, cfg.curriculum_steps)
-    table = targets.load(task.version, targets.map_path(anatomy.stomach_dir(task.anatomy), task.version))
-    listed = table.listed(name)
-    sampler = TargetSampler(listed, table.contact_aided(listed), cfg.target_sampling, cfg.curriculum_steps,
-                            base=table.pool_weights(name))
+    members = anatomy.members(task.anatomy)
+    keys, hard, base, sizes = [], [], [], []
+    for member in members:
+        table = targets.load(task.version, targets.map_path(anatomy.stomach_dir(member), task.version))
+        listed = table.listed(name)
+        keys += listed if len(members) == 1 else [(member, t) for t in listed]
+        hard.append(table.contact_aided(listed))
+        w = np.asarray(table.pool_weights(name), float)
+        base.append(w if len(members) == 1 else w / w.sum())  # across a set: each stomach as often as the others
+        sizes.append(len(listed))
+    sampler = TargetSampler(keys, np.concatenate(hard), cfg.target_sampling, cfg.curriculum_steps,
+                            base=np.concatenate(base), sizes=sizes if len(members) > 1 else None)
     ckpt = latest_checkpoint(run) if run is not None else None
     if ckpt is not None:
         sampler.load(ckpt.parent / f"sampling_{CKPT_RE.fullmatch(ckpt.name).group(1)}.json")
@@ -154,7 +160,7 @@ def _callbacks(cfg: TrainConfig, run: Path, meta: dict, start_steps: int, progre
             if cfg.critic_warmup_steps:  # the update after this rollout trains the actor only once warmed up
                 set_actor_trainable(self.model.policy, self.num_timesteps >= cfg.critic_warmup_steps)
             if self.sampler.active:  # how often each target is drawn (TrainConfig.target_sampling, curriculum)
-                self.training_env.env_method("set_target_weights", self.sampler.weights(self.num_timesteps))
+                self.training_env.env_method("set_target_weights", self.sampler.env_weights(self.num_timesteps))
             if cfg.guide_steps:  # guided starts (mjendo.demonstrations): the most demonstrator steps, falling to 0
                 self.training_env.env_method("set_guide_steps", guide_limit(cfg, self.num_timesteps))
 
@@ -165,7 +171,7 @@ def _callbacks(cfg: TrainConfig, run: Path, meta: dict, start_steps: int, progre
                     self.episodes.writerow([self.num_timesteps, ep["r"], ep["l"], int(info["is_success"]),
                                             info["distance_mm"]])
                     self.recent = (self.recent + [float(info["is_success"])])[-100:]
-                    self.sampler.record(info["target_index"], bool(info["is_success"]), int(ep["l"]))
+                    self.sampler.record(self.sampler.key(info), bool(info["is_success"]), int(ep["l"]))
             self.bar.update(self.model.n_envs)
             if self.num_timesteps >= self.next_eval:
                 self.next_eval += cfg.eval_every

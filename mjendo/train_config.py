@@ -20,7 +20,7 @@ from typing import Any
 
 import yaml
 
-from mjendo.config import CONDITIONS, FIDELITIES, POLICY_NAMES, ConfigError, TaskConfig, anatomy_set, task_config
+from mjendo.config import CONDITIONS, FIDELITIES, POLICY_NAMES, ConfigError, TaskConfig, task_config
 from mjendo.sampling import SAMPLINGS
 
 TASK_KEYS_SET_BY_POLICY = ("env", "fidelity", "force_obs")  # top-level fields of a policy entry
@@ -200,10 +200,6 @@ class TrainConfig:
                               f"backend {self.backend})")
         if self.target_sampling not in SAMPLINGS:
             raise ConfigError(f"target_sampling must be one of {', '.join(SAMPLINGS)}, not {self.target_sampling!r}")
-        weighs_targets = self.target_sampling != "uniform" or self.curriculum_steps
-        if weighs_targets and anatomy_set(self.task.get("anatomy")) is not None:
-            raise ConfigError(f"target_sampling {self.target_sampling!r} and curriculum_steps weigh one stomach's "
-                              f"targets: they need one anatomy, not the set {self.task['anatomy']!r}")
         if self.guide_steps < 0 or self.guide_decay_steps < 0 or (self.guide_steps and self.backend == "warp"):
             raise ConfigError(f"guide_steps and guide_decay_steps must be >= 0, and guided starts need the cpu "
                               f"backend (got {self.guide_steps}, {self.guide_decay_steps}, backend {self.backend})")

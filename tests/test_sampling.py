@@ -91,5 +91,42 @@ def test_each_stomach_of_a_set_draws_its_own_joined_pool_half_and_half():
     drawn = [task.reset(rng) is not None and task.target for _ in range(300)]
     assert 0.4 < np.mean([t in a for t in drawn]) < 0.6
     env.close()
-    with pytest.raises(ConfigError, match="need one anatomy, not the set 'train'"):
-        load_config("E", TRAINING_CONFIG, "randomized-free-pool", target_sampling="adaptive")
+
+
+def test_across_a_set_the_draw_weighs_pairs_of_stomach_and_target(tmp_path):
+    # Prioritised level replay over the training stomachs: a (stomach, target) pair the policy fails is drawn
+    # more often than one of the same list it solves, every stomach as often before any episode, and the env
+    # draws the stomach and then the target by the per-stomach weights, naming the stomach in every step's info.
+    from mjendo.envs import EndoscopeEnv
+    from mjendo.paths import TRAINING_CONFIG
+    from mjendo.train import load_config, target_sampler
+
+    cfg = load_config("E", TRAINING_CONFIG, "randomized-free-pool", target_sampling="adaptive")
+    sampler = target_sampler(cfg)
+    assert sampler.active and len(sampler.sizes) == 20 and sum(sampler.sizes) == len(sampler.targets)
+    assert np.allclose([x.sum() for x in sampler.env_weights(0)], sampler.env_weights(0)[0].sum())
+    start = sum(sampler.sizes[:3])
+    group = range(start, start + sampler.sizes[3])
+    i, j = [k for k in group if sampler.base[k] == sampler.base[start]][:2]
+    for _ in range(30):
+        sampler.record(sampler.targets[i], False, 128)
+        sampler.record(sampler.targets[j], True, 30)
+    w = sampler.weights(0)
+    assert w[i] / w[j] == pytest.approx((1 + FLOOR) / FLOOR, rel=0.01)
+    sampler.save(tmp_path / "s.json")  # a resumed run draws as the killed one did
+    back = target_sampler(cfg)
+    back.load(tmp_path / "s.json")
+    assert np.allclose(back.weights(0), w)
+
+    env = EndoscopeEnv("SE", anatomy="train", target_list="A+F")
+    only = [np.zeros(n) for n in sampler.sizes]
+    only[3][i - start] = 1.0
+    env.set_target_weights(only)
+    drawn = {(info["anatomy"], info["target_index"]) for info in (env.reset(seed=s)[1] for s in range(5))}
+    assert drawn == {sampler.targets[i]}
+    assert env.step(np.zeros(5))[4]["anatomy"] == sampler.targets[i][0] == env.anatomies[3]
+    env.set_target_weights(None)  # back to every stomach alike and each stomach's own draw
+    assert len({env.reset(seed=s)[1]["anatomy"] for s in range(12)}) >= 5
+    with pytest.raises(ValueError, match="one array per stomach"):
+        env.set_target_weights(only[:5])
+    env.close()

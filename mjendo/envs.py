@@ -243,7 +243,7 @@ class EndoscopeEnv(gym.Env):
 
     def step(self, action):
         r = self.task.step(action)
-        return r.obs, r.reward, r.terminated, r.truncated, {**r.info, "anatomy": self.task.cfg.anatomy}
+        return r.obs, r.reward, r.terminated, r.truncated, r.info
 
     # -------------------------------------------------------------- render
     def render(self):

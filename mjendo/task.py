@@ -436,6 +436,7 @@ class NavigationTask:
             "force_N": self.contact.force.copy(),
             "peak_force_N": self.peak_force,
             "target_index": self.target,
+            "anatomy": self.cfg.anatomy,
             "exited": bool(out["exited"]),
             "step": self.steps,
             **{k: float(out[k]) for k in mdp.REWARD_TERMS},

@@ -19,7 +19,7 @@ from mjendo.config import PAPER_ACTION_LIMIT, Endoscope
 from mjendo.endoscope import LINK_PREFIX
 from mjendo.units import from_mm
 
-if TYPE_CHECKING:  # the task runs this controller under its own actions (TaskConfig.residual)
+if TYPE_CHECKING:  # the task runs this controller under its own actions (TaskConfig.residual, task_space)
     from mjendo.task import NavigationTask
 
 
@@ -64,6 +64,11 @@ class DLSController:
         return np.array([dl[1] - dl[0], dl[3] - dl[2]]) / (2 * self.r)
 
     def act(self, obs, task: NavigationTask) -> np.ndarray:
+        return self.toward(task, task.target_pos() - task.sim.tip_pos())
+
+    def toward(self, task: NavigationTask, error: np.ndarray) -> np.ndarray:
+        """The action that moves the tip by ``error`` (m, world frame) on the model, clipped to the box: the
+        baseline aims it at the target, a task-space policy (TaskConfig.task_space) wherever it chooses."""
         d = task.sim.data
         pos, rot = d.xpos[self.base_body], d.xmat[self.base_body].reshape(3, 3)
         theta = self.bend(task)
@@ -72,7 +77,6 @@ class DLSController:
             return pos + rot @ arc_tip(q[:2], self.length) + q[2] * rot[:, 2]
 
         q0 = np.array([theta[0], theta[1], 0.0])
-        error = task.target_pos() - task.sim.tip_pos()
         jac = np.zeros((3, 3))
         for i, h in enumerate((1e-4, 1e-4, 1e-5)):
             dq = np.zeros(3)

@@ -143,9 +143,9 @@ class BatchedNavigation:
             raise ConfigError("randomization (per-episode tissue, load and noise) is not available in the batched "
                               "backend: train such a policy with --backend cpu")
         if any(getattr(self.cfg, k) for k in OBS_OPTIONS if k != "force_obs"):
-            raise ConfigError("scope_obs, time_obs, phase_obs, step_obs, depth_obs, normal_obs, plan_obs, residual and "
-                              "history_obs are not available in the batched backend: train such a policy with "
-                              "--backend cpu")
+            raise ConfigError("scope_obs, time_obs, phase_obs, step_obs, depth_obs, normal_obs, plan_obs, residual, "
+                              "task_space and history_obs are not available in the batched backend: train such a "
+                              "policy with --backend cpu")
         self.core = NavigationTask(self.cfg)  # the MDP's constants: start states, targets, frame, scales
         core, m = self.core, self.core.sim.model
         self.wp_device = device or ("cuda:0" if wp.is_cuda_available() else "cpu")

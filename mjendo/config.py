@@ -555,6 +555,11 @@ HISTORY_STEPS = 4
 # residual: the policy's action, times this, is added to the baseline's; 2 lets it reverse a saturated baseline
 # command (0.4 + 2 x -0.4 = -0.4), which the wall's strategies need (retract where the baseline inserts). Ours.
 RESIDUAL_GAIN = 2.0
+# task_space: the policy's three action values, times this, are the tip displacement (mm, world frame) the DLS
+# controller is asked for; at the 0.4 limit 10 mm, more than one control step moves the tip (insertion 2.5 mm,
+# a bending sweep 2-3 mm), so a saturated command asks for the joints' full step as the baseline's does. Ours.
+TASK_SPACE_MM_PER_UNIT = 25.0
+TASK_SPACE_SIZE = 3  # task_space: the tip displacement's three world components
 # depth_obs (TaskConfig.depth_obs): how far the tip camera's lens (4 mm behind the tip face) sees the lumen wall
 # along five rays, the tip axis and four tilted towards the bending planes. Gastroscopes image 140 degrees
 # (Olympus GIF-H190, a 70 degree half-angle; the tip camera here is 100), so a 30 degree tilt is well inside the
@@ -694,6 +699,12 @@ class TaskConfig:
     # action is observed. The baseline aims in free space in any stomach without training; the policy learns where
     # the wall must be used (not the paper's).
     residual: bool = False
+    # The action is a tip displacement in the world frame (TASK_SPACE_SIZE values, TASK_SPACE_MM_PER_UNIT mm each)
+    # that the damped-least-squares controller (mjendo.baseline) turns into cable and insertion commands
+    # (operational-space control, Khatib 1987): the policy chooses where the tip goes, the controller's
+    # kinematic model how, so the aim needs no learning and the policy spends its samples on the wall (not the
+    # paper's). Exclusive with residual.
+    task_space: bool = False
     target_list: str | None = None  # None: the environment's own list (A or B); "A+F": lists joined
     max_steps: int = PAPER_TRAIN_STEPS
     version: int = CURRENT_VERSION  # task version (VERSIONS): scope, gravity, time scales, targets
@@ -784,6 +795,9 @@ def task_config(**kw) -> TaskConfig:
     if cfg.anatomy is not None:
         _anatomy(cfg)
     cfg = replace(cfg, **{k: bool(getattr(cfg, k)) for k in _SWITCHES}, max_steps=int(cfg.max_steps))
+    if cfg.residual and cfg.task_space:
+        raise ConfigError("residual and task_space each give the action another meaning (a correction of the "
+                          "baseline's joint commands, a tip displacement): choose one")
     substeps(cfg)
     return cfg
 
@@ -791,7 +805,7 @@ def task_config(**kw) -> TaskConfig:
 ACTION_SCALES = ("control_period_s", "cable_mm_per_unit", "insertion_mm_per_unit")
 # TaskConfig's on/off fields (numpy's bools accepted, stored as Python's).
 _SWITCHES = ("force_obs", "force_off", "scope_obs", "time_obs", "phase_obs", "step_obs", "depth_obs", "normal_obs",
-             "plan_obs", "residual", "history_obs", "randomize_phase")
+             "plan_obs", "residual", "task_space", "history_obs", "randomize_phase")
 
 
 def _anatomy(cfg: TaskConfig) -> None:

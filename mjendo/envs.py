@@ -11,9 +11,9 @@ import mujoco
 import numpy as np
 
 from mjendo import anatomy
-from mjendo.config import ACTION_SIZE, PAPER_ACTION_LIMIT, ConfigError, TaskConfig, task_config
+from mjendo.config import PAPER_ACTION_LIMIT, ConfigError, TaskConfig, task_config
 from mjendo.endoscope import TIP_CAMERA
-from mjendo.task import NavigationTask
+from mjendo.task import NavigationTask, action_size
 
 CAMERAS = ("external", TIP_CAMERA)
 # Envs holding a renderer: closed at exit while OpenGL is still there (else EGL prints errors on teardown).
@@ -39,6 +39,10 @@ class EndoscopeEnv(gym.Env):
     |---|---|---|
     | 0-3 | cables +x, -x, +y, -y of the active segment | change of cable pull, 1 unit = 1 mm (0.4: 0.4 mm per step, 4 mm/s); positive pulls, negative pays out |
     | 4 | insertion through the cardia | change of insertion depth, 1 unit = 6.25 mm (0.4: 2.5 mm per step, 25 mm/s) |
+
+    With ``task_space=True`` (not the paper's) the action is ``Box(-0.4, 0.4, (3,))``: the tip displacement
+    asked of the DLS controller (``mjendo.baseline``), world x, y, z, 1 unit = 25 mm (0.4: 10 mm); the
+    controller turns it into the five commands above, within their limits.
 
     ## Observation space
 
@@ -95,6 +99,7 @@ class EndoscopeEnv(gym.Env):
     | ``normal_obs`` | False | include which way the wall faces at the target, as the tip camera's picture of it shows (not the paper's) |
     | ``plan_obs`` | False | include the stomach map's plan for the target: its free-space distance and the scripted way to it, as planning on a pre-operative CT would give (not the paper's) |
     | ``residual`` | False | the action corrects the DLS baseline's (``mjendo.baseline``): applied is the baseline's action plus twice the policy's, clipped to [-0.4, 0.4]; the baseline's action is observed (residual policy learning; not the paper's) |
+    | ``task_space`` | False | the action is a tip displacement (3 values) that the DLS controller turns into cable and insertion commands (operational-space control; not the paper's) |
     | ``history_obs`` | False | include the last four observations, a frame stack (not the paper's) |
     | ``fidelity`` | "fast" | "fast" (reduced-order stomach), "fast-compliant" (its contact calibrated to the FEM wall's tip paths), "fast-coarse" (on one trilinear cell: faster) or "full" (per-vertex FEM) |
     | ``target_list`` | the env's | "A" (training), "B" (held out), "F" (free-space targets: FE's own), or joined: "A+F" (each list drawn equally often) |
@@ -164,7 +169,7 @@ class EndoscopeEnv(gym.Env):
         self.width, self.height = int(width), int(height)
         self._renderer = None
         self.metadata = {**self.metadata, "render_fps": int(round(1.0 / self.task.control_dt))}
-        self.action_space = gym.spaces.Box(-PAPER_ACTION_LIMIT, PAPER_ACTION_LIMIT, (ACTION_SIZE,), np.float32)
+        self.action_space = gym.spaces.Box(-PAPER_ACTION_LIMIT, PAPER_ACTION_LIMIT, (action_size(cfg),), np.float32)
         self.observation_space = gym.spaces.Box(self.task.obs_low, self.task.obs_high, dtype=np.float32)
 
     def anatomy_task(self, k: int) -> NavigationTask:

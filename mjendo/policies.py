@@ -15,8 +15,8 @@ import numpy as np
 
 from mjendo import artifacts
 from mjendo.artifacts import PolicyError
-from mjendo.config import ACTION_SIZE, CURRENT_VERSION, PAPER_ACTION_LIMIT, ConfigError
-from mjendo.task import ACTION_SCALE_FIELDS, OBS_OPTIONS, NavigationTask, obs_options, obs_size
+from mjendo.config import CURRENT_VERSION, PAPER_ACTION_LIMIT, ConfigError
+from mjendo.task import ACTION_SCALE_FIELDS, OBS_OPTIONS, NavigationTask, action_size, obs_options, obs_size
 
 __all__ = ["PPOController", "PolicyError", "RandomController", "force_obs_of", "load_controller", "obs_options_of"]
 
@@ -99,7 +99,7 @@ class RandomController:
         pass
 
     def act(self, obs, task: NavigationTask) -> np.ndarray:
-        return self.rng.uniform(-PAPER_ACTION_LIMIT, PAPER_ACTION_LIMIT, ACTION_SIZE)
+        return self.rng.uniform(-PAPER_ACTION_LIMIT, PAPER_ACTION_LIMIT, action_size(task.cfg))
 
 
 NON_LEARNED = ("baseline", "random")

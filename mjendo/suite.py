@@ -14,8 +14,8 @@ from dm_control.rl import control
 from dm_control.suite import base
 from dm_env import specs
 
-from mjendo.config import ACTION_SIZE, PAPER_ACTION_LIMIT, task_config
-from mjendo.task import NavigationTask, obs_blocks, obs_options
+from mjendo.config import PAPER_ACTION_LIMIT, task_config
+from mjendo.task import NavigationTask, action_size, obs_blocks, obs_options
 
 
 class Physics(dm_mujoco.Physics):
@@ -57,7 +57,8 @@ class Navigation(base.Task):
         self._last = self.core.step(action)
 
     def action_spec(self, physics):
-        return specs.BoundedArray((ACTION_SIZE,), np.float64, -PAPER_ACTION_LIMIT, PAPER_ACTION_LIMIT, "action")
+        n = action_size(self.core.cfg)
+        return specs.BoundedArray((n,), np.float64, -PAPER_ACTION_LIMIT, PAPER_ACTION_LIMIT, "action")
 
     def get_observation(self, physics):
         obs = self.core.observation().astype(np.float64)

@@ -27,6 +27,8 @@ from mjendo.config import (
     PAPER_ACTION_LIMIT,
     PAPER_EXIT_X_MM,
     RESIDUAL_GAIN,
+    TASK_SPACE_MM_PER_UNIT,
+    TASK_SPACE_SIZE,
     ConfigError,
     TaskConfig,
     default_target_list,
@@ -61,10 +63,11 @@ RESIDUAL_BLOCKS = [("baseline_action", 5, "action units", (-PAPER_ACTION_LIMIT, 
 # history_obs: the observation's other blocks as they were at each of the last HISTORY_STEPS steps, newest first;
 # its bounds are theirs (obs_bounds).
 HISTORY_BLOCK = "previous_observations"
-# The task options that add observation blocks, in the order their blocks follow the paper's (history_obs last).
+# The task options a policy needs its task built with, in the order their blocks follow the paper's (history_obs
+# last): each adds observation blocks but task_space, which changes what an action means and adds none.
 OPTION_BLOCKS = {"force_obs": FORCE_BLOCKS, "scope_obs": SCOPE_BLOCKS, "time_obs": TIME_BLOCKS,
                  "phase_obs": PHASE_BLOCKS, "step_obs": STEP_BLOCKS, "depth_obs": DEPTH_BLOCKS,
-                 "normal_obs": NORMAL_BLOCKS, "plan_obs": PLAN_BLOCKS, "residual": RESIDUAL_BLOCKS}
+                 "normal_obs": NORMAL_BLOCKS, "plan_obs": PLAN_BLOCKS, "residual": RESIDUAL_BLOCKS, "task_space": []}
 OBS_OPTIONS = (*OPTION_BLOCKS, "history_obs")
 SETTLE_S = 1.0  # the stomach settles under gravity (and load) before episodes start
 # Start states are snapshots of the stomach in its periodic steady state, this
@@ -90,6 +93,11 @@ def obs_blocks(force_obs: bool, **options: bool) -> list[tuple]:
         n = sum(b[1] for b in blocks)
         blocks = blocks + [(HISTORY_BLOCK, HISTORY_STEPS * n, "the blocks above, newest first", None)]
     return blocks
+
+
+def action_size(cfg: TaskConfig) -> int:
+    """How many values an action has: the paper's cable and insertion commands, or a tip displacement."""
+    return TASK_SPACE_SIZE if cfg.task_space else ACTION_SIZE
 
 
 def obs_size(force_obs: bool, **options: bool) -> int:
@@ -173,8 +181,9 @@ class NavigationTask:
         self._fe_targets = None if self.sim.has_stomach else free_targets(c.fidelity, c.version, stomach)
         self._normal_stencils = self._target_normal_stencils() if c.normal_obs else None
         self.target_plans = self._target_plans(table, rows) if c.plan_obs else None
-        # residual: the controller whose action the policy's corrects, and its action for the state observed last
-        self._base = DLSController(self) if c.residual else None
+        # residual: the controller whose action the policy's corrects, and its action for the state observed last;
+        # task_space: the controller that turns the policy's tip displacement into commands
+        self._base = DLSController(self) if c.residual or c.task_space else None
         self.base_action = np.zeros(ACTION_SIZE)
         self._starts = self._settle()
         self._settled = self._starts[0]
@@ -383,9 +392,10 @@ class NavigationTask:
     def clip_action(self, action) -> np.ndarray:
         """Actions are clipped to [-0.4, 0.4]; a wrong shape or NaN is an error."""
         a = np.asarray(action, dtype=np.float64).reshape(-1)
-        if a.shape != (ACTION_SIZE,):
-            raise ValueError(f"action must have {ACTION_SIZE} values (4 cables, insertion), got shape "
-                             f"{np.shape(action)}")
+        n = action_size(self.cfg)
+        if a.shape != (n,):
+            what = "the tip displacement's x, y, z (task_space)" if self.cfg.task_space else "4 cables, insertion"
+            raise ValueError(f"action must have {n} values ({what}), got shape {np.shape(action)}")
         if not np.isfinite(a).all():
             raise ValueError(f"action contains NaN or inf: {a}; actions must be finite numbers in "
                              f"[-{PAPER_ACTION_LIMIT}, {PAPER_ACTION_LIMIT}]")
@@ -393,7 +403,9 @@ class NavigationTask:
 
     def step(self, action) -> StepResult:
         a = self.clip_action(action)
-        if self._base is not None:  # the policy corrects the baseline's action for the state it observed
+        if self.cfg.task_space:  # the controller moves the tip where the policy asks
+            a = self._base.toward(self, from_mm(a * TASK_SPACE_MM_PER_UNIT))
+        elif self._base is not None:  # the policy corrects the baseline's action for the state it observed
             a = np.clip(self.base_action + RESIDUAL_GAIN * a, -PAPER_ACTION_LIMIT, PAPER_ACTION_LIMIT)
         sim = self.sim
         done = a * self._actuation_gains()
@@ -473,9 +485,9 @@ class NavigationTask:
             if self.cfg.depth_obs else None
         normal = self.target_normal()[None] if self.cfg.normal_obs else None
         plan = self.target_plans[self._row][None] if self.cfg.plan_obs else None
-        if self._base is not None:
+        if self.cfg.residual:
             self.base_action = self._base.act(None, self)
-        base = self.base_action[None] if self._base is not None else None
+        base = self.base_action[None] if self.cfg.residual else None
         obs = mdp.observe(np, self.cfg, delta[None], sim.tip_vel()[None], sim.cable_lengths()[None],
                           np.array([self.prev_axial]), np.array([float(self.contact.active)]),
                           force[None], self._now_low, self._now_high, scope, left, phase, step, depth, normal,

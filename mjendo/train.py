@@ -313,11 +313,12 @@ def _start_from(cfg: TrainConfig, venv):
         raise ConfigError(f"init_from {src} is a study seed's evaluation copy (its value function is not stored): "
                           "start from a shipped policy folder, or train that seed again")
     have, want = artifacts.obs_options(src), obs_options(cfg.task_config())
-    if have["residual"] != want["residual"]:
-        how = "corrects the baseline controller's actions (residual) and this run does not" if have["residual"] \
-            else "acts alone and this run corrects the baseline controller's actions (residual)"
-        raise ConfigError(f"init_from {src} {how}: an action means something else in each; train from scratch "
-                          "or from a policy with the same residual setting")
+    for key, what in (("residual", "corrects the baseline controller's actions"),
+                      ("task_space", "asks the controller for a tip displacement")):
+        if have[key] != want[key]:
+            how = f"{what} ({key}) and this run does not" if have[key] else f"does not and this run {what} ({key})"
+            raise ConfigError(f"init_from {src} {how}: an action means something else in each; train from "
+                              f"scratch or from a policy with the same {key} setting")
     if have != want:
         # New blocks must come after all of the source's (widening appends inputs): none dropped, none in between.
         added = [k for k in OBS_OPTIONS if want[k] and not have[k]]

@@ -427,7 +427,7 @@ def test_without_mujoco_warp_the_batched_backend_says_how_to_install_it(monkeypa
 
 
 @pytest.mark.parametrize("option", ["scope_obs", "time_obs", "phase_obs", "step_obs", "depth_obs",
-                                    "normal_obs", "plan_obs", "residual", "history_obs"])
+                                    "normal_obs", "plan_obs", "residual", "task_space", "history_obs"])
 def test_the_added_observations_are_refused_by_the_batched_backend(option):
     with pytest.raises(ConfigError, match="history_obs are not available in the batched backend.*cpu"):
         BatchedNavigation(1, env="FE", device="cpu", **{option: True})

@@ -405,6 +405,34 @@ def test_residual_actions_correct_the_baseline_controllers():
     assert applied[4] < 0.0 < base[4]  # twice the policy's action reverses an inserting baseline
 
 
+def test_task_space_actions_move_the_tip_where_they_ask():
+    # The action is a tip displacement the DLS controller turns into commands: asked to go 10 mm along an axis,
+    # the tip goes that way, by about what one step of the joints allows; asked for the target's direction every
+    # step, it arrives as the baseline does. Observations are the paper's; a residual as well is refused.
+    env = EndoscopeEnv("FE", task_space=True)
+    assert env.action_space.shape == (3,) and env.observation_space.shape == (15,)
+    env.reset(seed=4)
+    axis = env.task.axis
+    for _ in range(8):  # insert first: at the start the bending section lies in the cardia
+        env.step(0.4 * axis)
+    side = np.cross(axis, [0.0, 0.0, 1.0])
+    side /= np.linalg.norm(side)
+    for direction in (side, -side, np.cross(axis, side), axis):
+        before = env.task.sim.tip_pos().copy()
+        for _ in range(3):
+            env.step(0.4 * direction)
+        moved = (env.task.sim.tip_pos() - before) * 1000.0
+        assert moved @ direction > 5.0 and moved @ direction > 0.9 * np.linalg.norm(moved)  # 7-8 mm, 0.95-1
+    aim = type("Aim", (), {"reset": lambda self, task: None,
+                           "act": lambda self, obs, task: np.clip(obs[:3] / 25.0, -0.4, 0.4)})()
+    steps = list(episode(env, aim, seed=2))
+    assert steps[-1].info["is_success"] and len(steps) < 80
+    with pytest.raises(ValueError, match=r"3 values \(the tip displacement's x, y, z \(task_space\)\)"):
+        env.step(np.zeros(5))
+    with pytest.raises(ConfigError, match="residual and task_space .* choose one"):
+        EndoscopeEnv("DE", task_space=True, residual=True)
+
+
 def test_history_observation_is_the_last_four_observations_newest_first():
     plain, stacked = EndoscopeEnv("DE"), EndoscopeEnv("DE", history_obs=True)
     assert stacked.observation_space.shape == (15 * 5,)

@@ -504,7 +504,7 @@ def test_a_fine_tune_adds_inputs_only_after_the_sources(monkeypatch):
     monkeypatch.setattr(artifacts, "obs_options",
                         lambda _d: {"force_obs": True, "scope_obs": False, "time_obs": True, "phase_obs": False,
                                     "step_obs": False, "depth_obs": False, "normal_obs": False, "plan_obs": False,
-                                    "residual": False, "history_obs": False})
+                                    "residual": False, "task_space": False, "history_obs": False})
     with pytest.raises(ConfigError, match="after the source's inputs, not drop or reorder them"):
         train_module._start_from(cfg, None)  # the scope's block would land before the source's time
     cfg.task = {**cfg.task, "time_obs": False}
@@ -514,7 +514,7 @@ def test_a_fine_tune_adds_inputs_only_after_the_sources(monkeypatch):
     monkeypatch.setattr(artifacts, "obs_options",
                         lambda _d: {"force_obs": True, "scope_obs": False, "time_obs": False, "phase_obs": True,
                                     "step_obs": False, "depth_obs": False, "normal_obs": False, "plan_obs": False,
-                                    "residual": False, "history_obs": False})
+                                    "residual": False, "task_space": False, "history_obs": False})
     with pytest.raises(ConfigError, match="breathing phase .* not drop or reorder"):
         train_module._start_from(cfg, None)  # the time left would land before the source's phase
 
@@ -524,12 +524,16 @@ def test_a_fine_tune_keeps_whether_actions_correct_the_baseline(monkeypatch):
 
     cfg = load_config("E", TRAINING_CONFIG, "anatomies-residual")
     cfg.init_from = "models/policies/E"  # acts alone: its actions would mean something else under residual
-    with pytest.raises(ConfigError, match="acts alone and this run corrects the baseline.*train from scratch"):
+    with pytest.raises(ConfigError, match="does not and this run corrects the baseline.*train from scratch"):
         train_module._start_from(cfg, None)
     cfg.task = {**cfg.task, "residual": False}
     monkeypatch.setattr(artifacts, "obs_options", lambda _d: {**{k: False for k in OBS_OPTIONS},
                                                               "force_obs": True, "residual": True})
     with pytest.raises(ConfigError, match="corrects the baseline controller's actions .* and this run does not"):
+        train_module._start_from(cfg, None)
+    cfg.task = {**cfg.task, "task_space": True}  # a tip displacement is no joint command either
+    monkeypatch.setattr(artifacts, "obs_options", lambda _d: {**{k: False for k in OBS_OPTIONS}, "force_obs": True})
+    with pytest.raises(ConfigError, match="does not and this run asks the controller for a tip displacement"):
         train_module._start_from(cfg, None)
 
 

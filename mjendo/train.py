@@ -292,12 +292,20 @@ def build_ppo(cfg: TrainConfig, venv, tensorboard_log: str | None = None):
         from mjendo.asymmetric import AsymmetricPolicy, actor_inputs
 
         policy, kwargs = AsymmetricPolicy, {"actor_inputs": actor_inputs(cfg.task_config(), cfg.critic_only)}
-    return PPO(policy, venv, seed=cfg.seed, device=torch_device(cfg), verbose=0, tensorboard_log=tensorboard_log,
-               learning_rate=learning_rate_schedule(cfg), n_steps=p.n_steps, batch_size=p.batch_size,
-               n_epochs=p.n_epochs, gamma=p.gamma, gae_lambda=p.gae_lambda, clip_range=p.clip_range,
-               ent_coef=p.ent_coef,
-               policy_kwargs={"net_arch": {"pi": list(p.net_arch), "vf": list(p.net_arch)},
-                              "activation_fn": torch.nn.Tanh, "log_std_init": p.log_std_init, **kwargs})
+    model = PPO(policy, venv, seed=cfg.seed, device=torch_device(cfg), verbose=0, tensorboard_log=tensorboard_log,
+                learning_rate=learning_rate_schedule(cfg), n_steps=p.n_steps, batch_size=p.batch_size,
+                n_epochs=p.n_epochs, gamma=p.gamma, gae_lambda=p.gae_lambda, clip_range=p.clip_range,
+                ent_coef=p.ent_coef,
+                policy_kwargs={"net_arch": {"pi": list(p.net_arch), "vf": list(p.net_arch)},
+                               "activation_fn": torch.nn.Tanh, "log_std_init": p.log_std_init, **kwargs})
+    return with_weight_decay(model, p.weight_decay)
+
+
+def with_weight_decay(model, weight_decay: float):
+    """``model`` whose optimizer applies this run's L2 penalty (a loaded one keeps the source run's otherwise)."""
+    for group in model.policy.optimizer.param_groups:
+        group["weight_decay"] = weight_decay
+    return model
 
 
 def _start_from(cfg: TrainConfig, venv):
@@ -341,6 +349,7 @@ def _start_from(cfg: TrainConfig, venv):
                      custom_objects={"learning_rate": schedule, "lr_schedule": schedule}, seed=cfg.seed,
                      n_steps=p.n_steps, batch_size=p.batch_size, n_epochs=p.n_epochs, gamma=p.gamma,
                      gae_lambda=p.gae_lambda, clip_range=p.clip_range, ent_coef=p.ent_coef)
+    with_weight_decay(model, p.weight_decay)
     model.num_timesteps = 0  # this run's budget counts from here
     if cfg.critic_only and getattr(model.policy, "actor_inputs", None) is None:
         raise ConfigError(f"init_from {src} already acts on {cfg.critic_only}: they cannot become critic-only "

@@ -496,6 +496,33 @@ def test_a_warmed_up_fine_tune_moves_the_critic_first_and_keeps_the_statistics(s
         load_config("E", TRAINING_CONFIG, critic_warmup_steps=-1)
 
 
+def test_weight_decay_pulls_the_weights_towards_zero(short_run, tmp_path):
+    # ppo.weight_decay is Adam's coupled L2 penalty: the same fine-tune (seed, samples) with it ends with smaller
+    # weight matrices than without, and its optimizer keeps it in every parameter group.
+    import torch
+    import yaml
+    from stable_baselines3 import PPO
+
+    src, _ = short_run
+    raw = yaml.safe_load((src.parent.parent / "policies.yaml").read_text())
+    norms = {}
+    for decay in (0.0, 0.5):
+        raw["defaults"]["ppo"]["weight_decay"] = decay
+        cfg_path = tmp_path / f"policies-{decay}.yaml"
+        cfg_path.write_text(yaml.safe_dump(raw))
+        run = train("D", timesteps=256, out=tmp_path, run_name=f"decay-{decay}", config_file=cfg_path,
+                    fidelity="fast", init_from=src, learning_rate=1e-3, progress=False)
+        model = PPO.load(str(run / "model.zip"), device="cpu")
+        assert {g["weight_decay"] for g in model.policy.optimizer.param_groups} == {decay}
+        state = model.policy.state_dict()
+        norms[decay] = sum(float(torch.norm(v)) for k, v in state.items() if v.ndim == 2)
+    assert norms[0.5] < norms[0.0]
+    raw["defaults"]["ppo"]["weight_decay"] = -1e-4
+    cfg_path.write_text(yaml.safe_dump(raw))
+    with pytest.raises(ConfigError, match="ent_coef and weight_decay >= 0"):
+        load_config("D", cfg_path)
+
+
 def test_a_fine_tune_adds_inputs_only_after_the_sources(monkeypatch):
     from mjendo import train as train_module
 

@@ -16,7 +16,15 @@ import numpy as np
 from mjendo import artifacts
 from mjendo.artifacts import PolicyError
 from mjendo.config import CURRENT_VERSION, PAPER_ACTION_LIMIT, ConfigError
-from mjendo.task import ACTION_SCALE_FIELDS, OBS_OPTIONS, NavigationTask, action_size, obs_options, obs_size
+from mjendo.task import (
+    ACTION_SCALE_FIELDS,
+    OBS_OPTIONS,
+    SIZE_OPTIONS,
+    NavigationTask,
+    action_size,
+    obs_options,
+    obs_size,
+)
 
 __all__ = ["PPOController", "PolicyError", "RandomController", "force_obs_of", "load_controller", "obs_options_of"]
 
@@ -46,12 +54,17 @@ class PPOController:
         """Refuse a task whose observation or action meaning differs from the one the policy trained in."""
         given = obs_size(**obs_options(task.cfg))
         if self.n_obs != given:
-            combos = [dict(zip(OBS_OPTIONS, on, strict=True))
-                      for on in itertools.product((False, True), repeat=len(OBS_OPTIONS))]
+            combos = [dict(zip(SIZE_OPTIONS, on, strict=True))
+                      for on in itertools.product((False, True), repeat=len(SIZE_OPTIONS))]
             fits = [", ".join(f"{k}={v}" for k, v in on.items()) for on in combos if obs_size(**on) == self.n_obs]
             raise PolicyError(f"policy {self.name} expects {self.n_obs} observations but the task gives {given}: "
                               f"use {' or '.join(fits) or 'the task the policy was trained in'}")
         trained = artifacts.trained_task(self.meta)
+        trained_space = bool(trained.get("task_space", False))
+        if trained_space != task.cfg.task_space:
+            what = "a tip displacement" if trained_space else "cable and insertion commands"
+            raise PolicyError(f"policy {self.name} acts by {what} (task_space={trained_space}), the task has "
+                              f"task_space={task.cfg.task_space}: build the task with the policy's setting")
         if int(trained["version"]) != task.cfg.version:
             raise PolicyError(f"policy {self.name} was trained in task version {trained['version']}, the task is "
                               f"version {task.cfg.version}: build the task with version={trained['version']} "

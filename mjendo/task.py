@@ -69,6 +69,7 @@ OPTION_BLOCKS = {"force_obs": FORCE_BLOCKS, "scope_obs": SCOPE_BLOCKS, "time_obs
                  "phase_obs": PHASE_BLOCKS, "step_obs": STEP_BLOCKS, "depth_obs": DEPTH_BLOCKS,
                  "normal_obs": NORMAL_BLOCKS, "plan_obs": PLAN_BLOCKS, "residual": RESIDUAL_BLOCKS, "task_space": []}
 OBS_OPTIONS = (*OPTION_BLOCKS, "history_obs")
+SIZE_OPTIONS = tuple(k for k in OBS_OPTIONS if k != "task_space")  # those that change the observation's size
 SETTLE_S = 1.0  # the stomach settles under gravity (and load) before episodes start
 # Start states are snapshots of the stomach in its periodic steady state, this
 # many per load cycle (every 50 ms of a 4 s cycle): an episode starts at its

@@ -12,6 +12,7 @@ from mjendo import targets
 from mjendo.baseline import DLSController
 from mjendo.config import ConfigError
 from mjendo.envs import EndoscopeEnv
+from mjendo.policies import PolicyError, load_controller
 from mjendo.rollout import episode, run
 
 IDS = [f"mjendo/{e}-v{v}" for v in (1, 0) for e in ("FE", "SE", "DE", "UE1", "UE2")] + ["endogym-v0"]
@@ -431,6 +432,9 @@ def test_task_space_actions_move_the_tip_where_they_ask():
         env.step(np.zeros(5))
     with pytest.raises(ConfigError, match="residual and task_space .* choose one"):
         EndoscopeEnv("DE", task_space=True, residual=True)
+    with pytest.raises(PolicyError, match=r"acts by cable and insertion commands \(task_space=False\), the task has "
+                                          r"task_space=True: build the task with the policy's setting"):
+        load_controller("E", env.task)  # same observation, another action: refused before a step
 
 
 def test_history_observation_is_the_last_four_observations_newest_first():

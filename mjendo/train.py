@@ -311,7 +311,6 @@ def with_weight_decay(model, weight_decay: float):
 def _start_from(cfg: TrainConfig, venv):
     """A PPO initialised from a trained policy folder, with a fresh learning-rate schedule (fine-tuning)."""
     from stable_baselines3 import PPO
-    from stable_baselines3.common.vec_env import VecNormalize
 
     src = model_home(paths.data_path(cfg.init_from))
     if not (src / MODEL_FILE).exists():
@@ -338,10 +337,9 @@ def _start_from(cfg: TrainConfig, venv):
                               "(depth_obs), the target's surface normal (normal_obs), the map's plan (plan_obs) or "
                               "the last observations (history_obs) after the source's inputs, not drop or reorder them")
         return _widened_start(cfg, venv, src)
-    if cfg.normalize:
-        venv = VecNormalize.load(str(src / NORM_FILE), venv)  # keeps adapting to the new stomach
-        venv.training = True
-        venv.gamma = cfg.ppo.gamma  # rewards scale by this run's discounted returns, not the source's
+    if _hidden_layers(PPO.load(str(src / MODEL_FILE), device="cpu")) != list(cfg.ppo.net_arch):
+        return _widened_start(cfg, venv, src)
+    venv = _source_normalizer(cfg, venv, src)
     schedule = learning_rate_schedule(cfg)
     p = cfg.ppo  # this run's PPO settings and seed rule, not the ones the policy was trained with (with the
     # source's seed every fine-tune of one policy would draw the same actions and episodes)
@@ -357,9 +355,27 @@ def _start_from(cfg: TrainConfig, venv):
     return model
 
 
+def _hidden_layers(model) -> list[int]:
+    """A PPO's hidden layers (its actor's; build_ppo gives the critic the same)."""
+    net = model.policy_kwargs.get("net_arch", [])
+    return list(net["pi"] if isinstance(net, dict) else net)
+
+
+def _source_normalizer(cfg: TrainConfig, venv, src: Path):
+    """``venv`` normalised by the source's statistics, which keep adapting to this run's stomach."""
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    if not cfg.normalize:
+        return venv
+    venv = VecNormalize.load(str(src / NORM_FILE), venv)
+    venv.training = True
+    venv.gamma = cfg.ppo.gamma  # rewards scale by this run's discounted returns, not the source's
+    return venv
+
+
 def _widened_start(cfg: TrainConfig, venv, src: Path):
-    """A PPO that also observes more (contact force, scope state, time left, phase), acting at first exactly as the
-    policy in ``src``."""
+    """A PPO that also observes more (contact force, scope state, time left, phase) or has wider hidden layers,
+    acting at first exactly as the policy in ``src``."""
     from stable_baselines3 import PPO
 
     from mjendo.widen import widen_state, widened_normalizer
@@ -369,10 +385,14 @@ def _widened_start(cfg: TrainConfig, venv, src: Path):
     n = source.observation_space.shape[0]
     model.policy.load_state_dict(widen_state(source.policy.state_dict(), model.policy.state_dict(), n,
                                              cfg.widen_scale, cfg.seed))
-    if cfg.normalize:
+    if model.observation_space.shape[0] == n:  # only the hidden layers grow
+        model.set_env(_source_normalizer(cfg, venv, src))
+    elif cfg.normalize:
         model.set_env(widened_normalizer(src / NORM_FILE, venv, cfg.ppo.gamma, model))
     weight = f"at {cfg.widen_scale:g} x the old ones' spread" if cfg.widen_scale else "at zero weight"
-    print(f"widened {src}: {n} inputs -> {model.observation_space.shape[0]} (the new ones {weight})")
+    inputs = f"{n} inputs -> {model.observation_space.shape[0]} (the new ones {weight}), "
+    print(f"widened {src}: {inputs if model.observation_space.shape[0] > n else ''}hidden layers "
+          f"{_hidden_layers(source)} -> {list(cfg.ppo.net_arch)}")
     return model
 
 

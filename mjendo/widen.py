@@ -6,6 +6,8 @@ The added inputs come last in the observation (task.OBS_OPTIONS' order), so the 
 are kept and the new inputs' weights start at zero: the widened policy and value function compute exactly
 what the source computed (function-preserving widening, as Net2Net) until training gives the new inputs
 weight. A policy that must learn from scratch to use the scope's state would first have to relearn the wall.
+The hidden layers can grow the same way (a wider ``ppo.net_arch`` than the source's): the new units take fresh
+incoming weights and start with zero outgoing ones, so they too change nothing until training weighs them.
 """
 
 from __future__ import annotations
@@ -20,29 +22,43 @@ from mjendo.config import ConfigError
 # Rollout steps of the source policy from which the new inputs' normalisation starts: enough for a few
 # whole episodes on each environment, so insertion depth, tip pose and time are seen over their range.
 STAT_STEPS = 2048
+GROWTH = ("a fine-tune can add inputs and widen the hidden layers, not remove inputs or units, nor add or remove "
+          "layers: give ppo.net_arch as many layers as the source's, each as wide or wider")
 
 
 def widen_state(source: dict, target: dict, n_source: int, scale: float = 0.0, seed: int = 0) -> dict:
-    """``target``'s state dict with ``source``'s tensors; first-layer weights padded with new columns: zero, or
-    normal at ``scale`` times the standard deviation of the layer's old weights (TrainConfig.widen_scale)."""
+    """``target``'s state dict holding ``source``'s tensors in its leading rows and columns. New columns (new inputs,
+    or new units of the layer below) start at zero, or for a first layer's new inputs normal at ``scale`` times the
+    spread of its old weights (TrainConfig.widen_scale); new rows (new units) keep ``target``'s fresh init."""
     import torch
 
     out = {}
     gen = torch.Generator().manual_seed(seed)
+    unmatched = sorted(set(source) ^ set(target))  # a layer added or removed
+    if unmatched:
+        name = unmatched[0]
+        have = tuple(source[name].shape) if name in source else "none"
+        want = tuple(target[name].shape) if name in target else "none"
+        raise ConfigError(f"cannot widen parameter {name}: source shape {have}, new shape {want} ({GROWTH})")
     for name, new in target.items():
         old = source[name]
         if old.shape == new.shape:
             out[name] = old.clone()
-        elif old.dim() == 2 and old.shape[0] == new.shape[0] and old.shape[1] == n_source < new.shape[1]:
-            out[name] = new.new_zeros(new.shape)
-            out[name][:, :n_source] = old
-            if scale:
-                noise = torch.randn(new.shape[0], new.shape[1] - n_source, generator=gen, dtype=new.dtype)
-                out[name][:, n_source:] = noise * (scale * float(old.std()))
+            continue
+        if old.dim() != new.dim() or any(o > w for o, w in zip(old.shape, new.shape, strict=True)):
+            raise ConfigError(f"cannot widen parameter {name}: source shape {tuple(old.shape)}, new shape "
+                              f"{tuple(new.shape)} ({GROWTH})")
+        grown = new.clone()
+        if old.dim() == 2:
+            rows, cols = old.shape
+            grown[:rows] = 0.0
+            grown[:rows, :cols] = old
+            if scale and cols == n_source < new.shape[1]:
+                noise = torch.randn(rows, new.shape[1] - cols, generator=gen, dtype=new.dtype)
+                grown[:rows, cols:] = noise * (scale * float(old.std()))
         else:
-            raise ConfigError(f"cannot widen parameter {name}: source shape {tuple(old.shape)}, "
-                              f"new shape {tuple(new.shape)} (the two policies' networks differ, not only "
-                              "their observation)")
+            grown[: old.shape[0]] = old
+        out[name] = grown
     return out
 
 

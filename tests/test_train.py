@@ -396,6 +396,7 @@ def test_same_seed_same_machine_trains_bit_identical_weights(short_run, tmp_path
     ("paper-step-history", 11, 75, (0.0, 1.0), 0.5, 60),  # the same, then four past observations of all 15
     ("anatomies-depth", 15, 20, (1.0, 100.0), 5.0, 20),   # the wall's distance along the tip axis, in mm
     ("anatomies-normal", 15, 18, (-1.0, 1.0), 0.05, 20),  # the target's surface normal, a unit vector
+    ("anatomies-wide", 15, 18, (-1.0, 1.0), 0.05, 20),  # the same, every hidden layer twice as wide as well
 ])
 def test_a_fine_tune_that_adds_inputs_starts_acting_and_valuing_as_its_source(monkeypatch, variant, n, size,
                                                                                mean_range, spread, steps):
@@ -459,6 +460,40 @@ def test_widen_scale_starts_the_new_inputs_at_the_old_ones_spread():
     assert not torch.allclose(scaled["w"] @ x, zero["w"] @ x)
     with pytest.raises(ConfigError, match="widen_scale must be a number from 0"):
         load_config("E", TRAINING_CONFIG, widen_scale=-1.0)
+
+
+def test_a_fine_tune_grows_the_hidden_layers_without_changing_the_policy_and_cannot_shrink_them():
+    # ppo.net_arch wider than the source's: the new units start with zero outgoing weight, so the grown policy acts
+    # and values as its source on the same inputs while its new units already respond; fewer units or another number
+    # of layers is an error.
+    import pickle
+
+    import torch
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    from mjendo import train as train_module
+
+    cfg = load_config("E", TRAINING_CONFIG, init_from="models/policies/E", n_envs=1)
+    cfg.ppo.net_arch = [512, 256, 128, 64]
+    model = train_module._start_from(cfg, DummyVecEnv([make_env(cfg, 0)]))
+    source = PPO.load(str(mjendo.paths.DATA / "models/policies/E/model.zip"), device="cpu")
+    assert [m.out_features for m in model.policy.mlp_extractor.policy_net if hasattr(m, "out_features")] == \
+        [512, 256, 128, 64]
+    with open(mjendo.paths.DATA / "models/policies/E/vecnormalize.pkl", "rb") as f:
+        assert np.array_equal(model.get_env().obs_rms.mean, pickle.load(f).obs_rms.mean)  # the source's statistics
+    obs = torch.randn(64, 15, generator=torch.Generator().manual_seed(0))
+    with torch.no_grad():
+        for new, old in ((model.policy.get_distribution(obs).distribution.mean,
+                          source.policy.get_distribution(obs).distribution.mean),
+                         (model.policy.predict_values(obs), source.policy.predict_values(obs))):
+            np.testing.assert_allclose(new.numpy(), old.numpy(), atol=1e-5)
+        hidden = model.policy.mlp_extractor.policy_net[:2](obs)[:, 256:]
+    assert float(hidden.abs().mean()) > 0.1  # the new units respond, with nothing downstream yet
+    for fewer in ([256, 128, 64, 16], [256, 128, 64], [256, 128, 64, 32, 32]):
+        cfg.ppo.net_arch = fewer
+        with pytest.raises(ConfigError, match="not remove inputs or units, nor add or remove layers"):
+            train_module._start_from(cfg, DummyVecEnv([make_env(cfg, 0)]))
 
 
 def test_a_warmed_up_fine_tune_moves_the_critic_first_and_keeps_the_statistics(short_run, tmp_path):

@@ -50,14 +50,16 @@ def scene_path(env: str, fidelity: str = "fast", version: int = CURRENT_VERSION,
                stomach: Path | None = None) -> Path:
     """Scene file an environment runs in (FE has no stomach: one file for every fidelity).
 
-    The built-in stomach's are committed: the current task version's in models/scenes/, older versions' in
-    models/scenes/v<N>/. Another stomach's (``stomach``: its folder) are built once into the cache, named by
-    a hash of its mesh and sets, the task version and this module's builder.
+    The built-in stomach's are committed: the current task version's in models/scenes/, other versions' in
+    models/scenes/v<N>/ unless built from the same config as the current version's (one file, not two copies).
+    Another stomach's (``stomach``: its folder) are built once into the cache, named by a hash of its mesh and
+    sets, the task version and this module's builder.
     """
-    name = f"{scene_name(scene_config(env, fidelity, version))}.xml"
+    cfg = scene_config(env, fidelity, version)
+    name = f"{scene_name(cfg)}.xml"
     if stomach is None or Path(stomach).resolve() == anatomy.STOMACH_DIR.resolve():
-        folder = SCENES_DIR if version == CURRENT_VERSION else SCENES_DIR / f"v{version}"
-        return folder / name
+        same = version == CURRENT_VERSION or cfg == scene_config(env, fidelity, CURRENT_VERSION)
+        return (SCENES_DIR if same else SCENES_DIR / f"v{version}") / name
     stomach = Path(stomach)
     h = hashlib.sha256(f"{version} {mujoco.__version__}".encode())
     for part in ("stomach.json", "stomach.msh"):
@@ -66,7 +68,6 @@ def scene_path(env: str, fidelity: str = "fast", version: int = CURRENT_VERSION,
     path = paths.CACHE / "scenes" / h.hexdigest()[:16] / name
     if not path.exists():
         path.parent.mkdir(parents=True, exist_ok=True)
-        cfg = scene_config(env, fidelity, version)
         spec = build_spec(cfg, anatomy.load(stomach), stomach)
         probe(spec.compile(), fidelity=cfg.fidelity.name)
         tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp")

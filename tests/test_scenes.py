@@ -35,6 +35,14 @@ def test_committed_scene_is_current(env, fidelity):
     assert scene.scene_path(env, fidelity).read_text() == scene.scene_xml(env, fidelity, check=False)
 
 
+def test_a_task_version_whose_scene_is_the_current_ones_shares_its_file():
+    # Version 2 runs the full stomach as version 1 does (both at 10 ms): one committed file, no copy in v2/.
+    assert scene.scene_path("DE", "full", version=2) == scene.scene_path("DE", "full")
+    assert scene.scene_path("DE", "fast", version=2) != scene.scene_path("DE", "fast")
+    texts = [p.read_bytes() for p in scene.SCENES_DIR.rglob("*.xml")]
+    assert len(set(texts)) == len(texts)
+
+
 def test_one_scene_per_fidelity_plus_fe():
     # SE, DE, UE1 and UE2 share their fidelity's scene; only the load amplitude differs, set by the Simulator.
     assert sorted(p.name for p in scene.SCENES_DIR.glob("*.xml")) == [

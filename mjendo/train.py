@@ -83,6 +83,9 @@ class _Appender:
         self.w.writerow(row)
         self.f.flush()
 
+    def close(self) -> None:
+        self.f.close()
+
 
 def trial_env_kwargs(cfg: TrainConfig) -> dict:
     """The periodic evaluation's task: the run's, as a trial (80 steps, success at the paper's distance
@@ -199,6 +202,10 @@ def _callbacks(cfg: TrainConfig, run: Path, meta: dict, start_steps: int, progre
         def _on_training_end(self) -> None:
             self.checkpoint_if_due()
             self.bar.close()
+
+        def close_logs(self) -> None:
+            self.episodes.close()
+            self.evals.close()
 
     return Training()
 
@@ -496,6 +503,8 @@ def train(policy: str, timesteps: int | None = None, seed: int | None = None, n_
         print(f"\ninterrupted: saved {path}; run the same command to resume")
         venv.close()
         raise SystemExit(130) from None
+    finally:
+        cb.close_logs()
     wall = time.time() - t0
     meta.update({"timesteps": int(model.num_timesteps), "wall_s": final_meta.get("wall_s", 0.0) + wall,
                  "steps_per_s": (model.num_timesteps - start) / max(wall, 1e-9), "command": command_as_typed(),
